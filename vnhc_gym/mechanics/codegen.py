@@ -1,0 +1,486 @@
+"""Turn a :class:`~vnhc_gym.mechanics.constraint.SymbolicLaw` into a cached numba module.
+
+Why code generation: the law and the RK4 step are a few dozen flops per system, so a numpy
+implementation is dominated by per-call overhead (about 1 us per array op).  Emitting the
+common-subexpression-eliminated formulas as straight-line scalar code and compiling it with
+numba gives one fused kernel per batch: microseconds at batch 1, millions of steps per second
+in a batch.  The generated file is written once to a cache folder keyed by a hash of the
+symbolic input, and numba caches its machine code beside it, so a new process neither
+re-derives nor recompiles.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import sys
+import tempfile
+import threading
+from pathlib import Path
+from types import ModuleType
+
+import sympy as sp
+from sympy.printing.pycode import PythonCodePrinter
+
+from vnhc_gym.mechanics.constraint import SymbolicLaw
+
+__all__ = ["cache_dir", "generate_source", "load_module", "CODEGEN_VERSION"]
+
+CODEGEN_VERSION = "7"
+_LOCK = threading.Lock()
+_LOADED: dict[str, ModuleType] = {}
+
+
+def cache_dir() -> Path:
+    """Folder for generated modules: ``$VNHC_GYM_CACHE_DIR`` or ``~/.cache/vnhc_gym``."""
+    root = os.environ.get("VNHC_GYM_CACHE_DIR")
+    base = Path(root) if root else Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "vnhc_gym"
+    return base / f"codegen-v{CODEGEN_VERSION}"
+
+
+class _Printer(PythonCodePrinter):
+    """Plain ``math`` printer; integer powers become products (faster, exact for squares)."""
+
+    def _print_Pow(self, expr: sp.Pow, rational: bool = False) -> str:
+        base, exp = expr.args
+        if exp.is_Integer and 1 < int(exp) <= 4:
+            b = self.parenthesize(base, 100)
+            return "*".join([b] * int(exp))
+        if exp.is_Integer and -4 <= int(exp) <= -1:
+            b = self.parenthesize(base, 100)
+            return "1.0/(" + "*".join([b] * -int(exp)) + ")"
+        return super()._print_Pow(expr, rational=rational)
+
+
+def _body(assignments: list[tuple[str, sp.Expr]], subs: dict[sp.Symbol, sp.Symbol], reads: str) -> str:
+    """Straight-line code for ``target = expr`` pairs with shared subexpressions."""
+    printer = _Printer({"fully_qualified_modules": True, "standard": "python3"})
+    exprs = [sp.sympify(e).xreplace(subs) for _, e in assignments]
+    temps, reduced = sp.cse(exprs, symbols=sp.numbered_symbols("t_"), optimizations="basic")
+    lines = [reads] if reads else []
+    for sym, expr in temps:
+        lines.append(f"{sym} = {printer.doprint(sp.Float(expr) if expr.is_Number else expr)}")
+    for (target, _), expr in zip(assignments, reduced, strict=True):
+        lines.append(f"{target} = {printer.doprint(sp.Float(expr) if expr.is_Number else expr)}")
+    if not lines:
+        lines = ["pass"]
+    return "\n".join("    " + line for line in lines)
+
+
+def _used(assignments: list[tuple[str, sp.Expr]], names: list[sp.Symbol]) -> list[int]:
+    free: set[sp.Symbol] = set()
+    for _, e in assignments:
+        free |= sp.sympify(e).free_symbols
+    return [i for i, s in enumerate(names) if s in free]
+
+
+def _reads(indices: list[int], array: str, prefix: str) -> str:
+    return "; ".join(f"{prefix}{i} = {array}[{i}]" for i in indices)
+
+
+def generate_source(law: SymbolicLaw, outputs: dict[str, sp.Expr] | None = None) -> str:
+    """Python source of a numba module implementing ``law`` (see the module template)."""
+    system = law.system
+    n, m = system.n, system.m
+    state_syms = list(system.q) + list(system.qd)
+    param_syms = list(system.param_symbols)
+    subs = {s: sp.Symbol(f"s_{i}") for i, s in enumerate(state_syms)}
+    subs.update({s: sp.Symbol(f"p_{i}") for i, s in enumerate(param_syms)})
+    outputs = outputs or {}
+
+    def block(assignments: list[tuple[str, sp.Expr]]) -> str:
+        s_idx = _used(assignments, state_syms)
+        p_idx = _used(assignments, param_syms)
+        reads = "; ".join(x for x in (_reads(s_idx, "s", "s_"), _reads(p_idx, "p", "p_")) if x)
+        return _body(assignments, subs, reads)
+
+    phi_body = block([(f"out[{b}]", law.phi[b]) for b in range(m)])
+    hol_body = block([(f"out[{b}]", law.phi_h[b]) for b in range(m)]) if law.phi_h is not None else "    pass"
+    dyn = [(f"a0[{i}]", law.a0[i]) for i in range(n)]
+    dyn += [(f"Y[{i}, {a}]", law.Y[i, a]) for i in range(n) for a in range(m)]
+    cg = [(f"C[{b}, {a}]", law.C[b, a]) for b in range(m) for a in range(m)]
+    cg += [(f"G[{b}]", law.G[b]) for b in range(m)]
+    aux = [(f"out[{i}]", e) for i, e in enumerate(outputs.values())]
+    # Acceleration a0 + Y u written out with u as symbols: sparsity of Y is used for free.
+    u_syms = [sp.Symbol(f"u_{a}") for a in range(m)]
+    accel = law.a0 + law.Y * sp.Matrix(u_syms)
+    acc_assign = [(f"ds[{n + i}]", accel[i]) for i in range(n)]
+    u_reads = "; ".join(f"u_{a} = u[{a}]" for a in range(m) if any(
+        sp.Symbol(f"u_{a}") in e.free_symbols for _, e in acc_assign))
+    acc_body = block(acc_assign)
+    if u_reads:
+        acc_body = "    " + u_reads + "\n" + acc_body
+    diagonal = all(sp.simplify(law.C[b, a]) == 0 for b in range(m) for a in range(m) if a != b)
+    if diagonal:
+        solve = ("    flag = 0\n"
+                 "    for b in range(M):\n"
+                 "        c = C[b, b]\n"
+                 "        if not abs(c) > tol * max(1.0, abs(c)):\n"
+                 "            flag = FLAG_SINGULAR\n"
+                 "    if flag:\n"
+                 "        for b in range(M):\n"
+                 "            u[b] = 0.0\n"
+                 "        return flag\n"
+                 "    for b in range(M):\n"
+                 "        u[b] = G[b] / C[b, b]\n"
+                 "    return 0")
+    else:
+        solve = "    return solve_small(C, G, u, tol)"
+    return _TEMPLATE.format(
+        name=system.name, n=n, m=m, n_params=len(param_syms), n_gains=law.n_gains, n_aux=len(outputs),
+        holonomic=law.phi_h is not None,
+        phi_body=phi_body, hol_body=hol_body, dyn_body=block(dyn), cg_body=block(cg),
+        energy_body=block([("e", law.energy)]), aux_body=block(aux) if aux else "    pass",
+        acc_body=acc_body, solve_body=solve, diagonal=diagonal,
+    )
+
+
+def _key(parts: list[str]) -> str:
+    digest = hashlib.sha256("\x00".join([CODEGEN_VERSION, *parts]).encode()).hexdigest()
+    return digest[:20]
+
+
+def load_module(key_parts: list[str], make_source: "callable[[], str]") -> ModuleType:  # type: ignore[valid-type]
+    """Import the generated module for ``key_parts``, generating it first if not cached.
+
+    ``make_source`` is only called on a cache miss, so a warm start skips the symbolic work.
+    """
+    key = _key(key_parts)
+    with _LOCK:
+        if key in _LOADED:
+            return _LOADED[key]
+        folder = cache_dir()
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"vnhc_gen_{key}.py"
+        if not path.exists():
+            source = make_source()
+            # Atomic publish: parallel processes (SubprocVecEnv) may race to write the file.
+            fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
+            with os.fdopen(fd, "w") as fh:
+                fh.write(source)
+            os.replace(tmp, path)
+        mod_name = f"vnhc_gym._generated_{key}"
+        spec = importlib.util.spec_from_file_location(mod_name, path)
+        if spec is None or spec.loader is None:  # pragma: no cover - importlib contract
+            raise ImportError(f"cannot import generated module {path}")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[mod_name] = module  # numba's cache and pickling look modules up by name
+        spec.loader.exec_module(module)
+        _LOADED[key] = module
+        return module
+
+
+_TEMPLATE = '''\
+# Generated by vnhc_gym.mechanics.codegen for system {name!r}. Do not edit: delete to regenerate.
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from vnhc_gym.mechanics._kernels import FLAG_NONFINITE, FLAG_SINGULAR, solve_small
+
+N = {n}
+M = {m}
+NP = {n_params}
+NG = {n_gains}
+NAUX = {n_aux}
+HOLONOMIC = {holonomic}
+DIAGONAL_C = {diagonal}
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _phi(s, p, out):
+{phi_body}
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _hol(s, p, out):
+{hol_body}
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _dyn(s, p, a0, Y):
+{dyn_body}
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _cg(s, p, C, G):
+{cg_body}
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _energy(s, p):
+{energy_body}
+    return e
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _aux(s, p, out):
+{aux_body}
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _law(s, p, k, tol, C, G, ph, hol, u):
+    """u = C^-1 (-K phi - G); returns FLAG_SINGULAR (and u = 0) if C is singular."""
+    _cg(s, p, C, G)
+    _phi(s, p, ph)
+    if HOLONOMIC:
+        _hol(s, p, hol)
+        for b in range(M):
+            G[b] = -k[b] * hol[b] - k[M + b] * ph[b] - G[b]
+    else:
+        for b in range(M):
+            G[b] = -k[b] * ph[b] - G[b]
+{solve_body}
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _accel(s, p, u, ds):
+{acc_body}
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _deriv(s, p, u, a0, Y, ds):
+    for i in range(N):
+        ds[i] = s[N + i]
+    _accel(s, p, u, ds)
+
+
+@njit(cache=True, inline="always")
+def _work():
+    # One allocation per call (not per row): 16 work vectors, then Y and C.
+    W = np.empty((16, max(2 * N, NP, NG)))
+    return W, np.empty((N, M)), np.empty((M, M))
+
+
+@njit(cache=True, inline="always")
+def _finish(r, x, acc, substeps, flag, out, u_out, flags):
+    finite = True
+    for i in range(2 * N):
+        out[r, i] = x[i]
+        if not math.isfinite(x[i]):
+            finite = False
+    for a in range(M):
+        u_out[r, a] = acc[a] / substeps
+    if not finite:
+        flag |= FLAG_NONFINITE
+    flags[r] = flag
+
+
+@njit(cache=True, error_model="numpy")
+def _rows_open(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags):
+    W, Y, C = _work()
+    n2 = 2 * N
+    x = W[0, :n2]; k1 = W[1, :n2]; k2 = W[2, :n2]; k3 = W[3, :n2]; k4 = W[4, :n2]; tmp = W[5, :n2]
+    p = W[6, :NP]; kk = W[7, :NG]; uh = W[8, :M]; u = W[9, :M]; ul = W[10, :M]; acc = W[11, :M]
+    G = W[12, :M]; ph = W[13, :M]; hol = W[14, :M]; a0 = W[15, :N]
+    h = dt / substeps
+    for r in range(start, stop):
+        flag = 0
+        for i in range(n2):
+            x[i] = S[r, i]
+        for i in range(NP):
+            p[i] = P[r, i]
+        for i in range(NG):
+            kk[i] = K[r, i]
+        for a in range(M):
+            uh[a] = U[r, a]
+            acc[a] = 0.0
+        for _ in range(substeps):
+            for a in range(M):
+                u[a] = min(max(uh[a], lo[a]), hi[a])
+            for a in range(M):
+                acc[a] += u[a]
+            _deriv(x, p, u, a0, Y, k1)
+            for i in range(n2):
+                tmp[i] = x[i] + 0.5 * h * k1[i]
+            for a in range(M):
+                u[a] = min(max(uh[a], lo[a]), hi[a])
+            _deriv(tmp, p, u, a0, Y, k2)
+            for i in range(n2):
+                tmp[i] = x[i] + 0.5 * h * k2[i]
+            for a in range(M):
+                u[a] = min(max(uh[a], lo[a]), hi[a])
+            _deriv(tmp, p, u, a0, Y, k3)
+            for i in range(n2):
+                tmp[i] = x[i] + h * k3[i]
+            for a in range(M):
+                u[a] = min(max(uh[a], lo[a]), hi[a])
+            _deriv(tmp, p, u, a0, Y, k4)
+            for i in range(n2):
+                x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+        _finish(r, x, acc, substeps, flag, out, u_out, flags)
+
+@njit(cache=True, error_model="numpy")
+def _rows_continuous(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags):
+    W, Y, C = _work()
+    n2 = 2 * N
+    x = W[0, :n2]; k1 = W[1, :n2]; k2 = W[2, :n2]; k3 = W[3, :n2]; k4 = W[4, :n2]; tmp = W[5, :n2]
+    p = W[6, :NP]; kk = W[7, :NG]; uh = W[8, :M]; u = W[9, :M]; ul = W[10, :M]; acc = W[11, :M]
+    G = W[12, :M]; ph = W[13, :M]; hol = W[14, :M]; a0 = W[15, :N]
+    h = dt / substeps
+    for r in range(start, stop):
+        flag = 0
+        for i in range(n2):
+            x[i] = S[r, i]
+        for i in range(NP):
+            p[i] = P[r, i]
+        for i in range(NG):
+            kk[i] = K[r, i]
+        for a in range(M):
+            uh[a] = U[r, a]
+            acc[a] = 0.0
+        for _ in range(substeps):
+            flag |= _law(x, p, kk, tol, C, G, ph, hol, ul)
+            for a in range(M):
+                u[a] = min(max(ul[a] + uh[a], lo[a]), hi[a])
+            for a in range(M):
+                acc[a] += u[a]
+            _deriv(x, p, u, a0, Y, k1)
+            for i in range(n2):
+                tmp[i] = x[i] + 0.5 * h * k1[i]
+            flag |= _law(tmp, p, kk, tol, C, G, ph, hol, ul)
+            for a in range(M):
+                u[a] = min(max(ul[a] + uh[a], lo[a]), hi[a])
+            _deriv(tmp, p, u, a0, Y, k2)
+            for i in range(n2):
+                tmp[i] = x[i] + 0.5 * h * k2[i]
+            flag |= _law(tmp, p, kk, tol, C, G, ph, hol, ul)
+            for a in range(M):
+                u[a] = min(max(ul[a] + uh[a], lo[a]), hi[a])
+            _deriv(tmp, p, u, a0, Y, k3)
+            for i in range(n2):
+                tmp[i] = x[i] + h * k3[i]
+            flag |= _law(tmp, p, kk, tol, C, G, ph, hol, ul)
+            for a in range(M):
+                u[a] = min(max(ul[a] + uh[a], lo[a]), hi[a])
+            _deriv(tmp, p, u, a0, Y, k4)
+            for i in range(n2):
+                x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+        _finish(r, x, acc, substeps, flag, out, u_out, flags)
+
+@njit(cache=True, error_model="numpy")
+def _rows_sampled(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags):
+    W, Y, C = _work()
+    n2 = 2 * N
+    x = W[0, :n2]; k1 = W[1, :n2]; k2 = W[2, :n2]; k3 = W[3, :n2]; k4 = W[4, :n2]; tmp = W[5, :n2]
+    p = W[6, :NP]; kk = W[7, :NG]; uh = W[8, :M]; u = W[9, :M]; ul = W[10, :M]; acc = W[11, :M]
+    G = W[12, :M]; ph = W[13, :M]; hol = W[14, :M]; a0 = W[15, :N]
+    h = dt / substeps
+    for r in range(start, stop):
+        flag = 0
+        for i in range(n2):
+            x[i] = S[r, i]
+        for i in range(NP):
+            p[i] = P[r, i]
+        for i in range(NG):
+            kk[i] = K[r, i]
+        for a in range(M):
+            uh[a] = U[r, a]
+            acc[a] = 0.0
+        flag |= _law(x, p, kk, tol, C, G, ph, hol, ul)
+        for a in range(M):
+            uh[a] += ul[a]
+        for _ in range(substeps):
+            for a in range(M):
+                u[a] = min(max(uh[a], lo[a]), hi[a])
+            for a in range(M):
+                acc[a] += u[a]
+            _deriv(x, p, u, a0, Y, k1)
+            for i in range(n2):
+                tmp[i] = x[i] + 0.5 * h * k1[i]
+            for a in range(M):
+                u[a] = min(max(uh[a], lo[a]), hi[a])
+            _deriv(tmp, p, u, a0, Y, k2)
+            for i in range(n2):
+                tmp[i] = x[i] + 0.5 * h * k2[i]
+            for a in range(M):
+                u[a] = min(max(uh[a], lo[a]), hi[a])
+            _deriv(tmp, p, u, a0, Y, k3)
+            for i in range(n2):
+                tmp[i] = x[i] + h * k3[i]
+            for a in range(M):
+                u[a] = min(max(uh[a], lo[a]), hi[a])
+            _deriv(tmp, p, u, a0, Y, k4)
+            for i in range(n2):
+                x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+        _finish(r, x, acc, substeps, flag, out, u_out, flags)
+
+
+@njit(cache=True)
+def _rows(mode, start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags):
+    if mode == 0:
+        _rows_open(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags)
+    elif mode == 1:
+        _rows_continuous(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags)
+    else:
+        _rows_sampled(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags)
+
+
+@njit(cache=True)
+def rk4(S, P, U, K, mode, lo, hi, dt, substeps, tol, out, u_out, flags):
+    """Batched RK4 over rows of S (B, 2N); P (B, NP), U (B, M), K (B, NG).
+
+    mode 0 (open): u = clip(U) held.  mode 1 (continuous): u = clip(u*(stage) + U) at every
+    RK4 stage.  mode 2 (sampled): u = clip(u*(start) + U), evaluated once and held over the
+    control period dt (split into `substeps` RK4 steps).  u_out gets the mean applied control.
+    """
+    _rows(mode, 0, S.shape[0], S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags)
+
+
+@njit(cache=True, parallel=True)
+def rk4_parallel(S, P, U, K, mode, lo, hi, dt, substeps, tol, out, u_out, flags, n_chunks):
+    """rk4 split into n_chunks row blocks run on numba's thread pool."""
+    B = S.shape[0]
+    for c in prange(n_chunks):
+        _rows(mode, c * B // n_chunks, (c + 1) * B // n_chunks, S, P, U, K, lo, hi, dt, substeps, tol,
+              out, u_out, flags)
+
+
+@njit(cache=True)
+def law(S, P, K, tol, U, flags):
+    """Batched u* (K = 0 gives u_hat); flags[r] = FLAG_SINGULAR where C is singular."""
+    C = np.empty((M, M))
+    G = np.empty(M)
+    ph = np.empty(M)
+    hol = np.empty(M)
+    for r in range(S.shape[0]):
+        flags[r] = _law(S[r], P[r], K[r], tol, C, G, ph, hol, U[r])
+
+
+@njit(cache=True)
+def phi(S, P, out):
+    for r in range(S.shape[0]):
+        _phi(S[r], P[r], out[r])
+
+
+@njit(cache=True)
+def phi_h(S, P, out):
+    for r in range(S.shape[0]):
+        _hol(S[r], P[r], out[r])
+
+
+@njit(cache=True)
+def cg(S, P, C, G):
+    for r in range(S.shape[0]):
+        _cg(S[r], P[r], C[r], G[r])
+
+
+@njit(cache=True)
+def dyn(S, P, A0, Y):
+    for r in range(S.shape[0]):
+        _dyn(S[r], P[r], A0[r], Y[r])
+
+
+@njit(cache=True)
+def energy(S, P, out):
+    for r in range(S.shape[0]):
+        out[r] = _energy(S[r], P[r])
+
+
+@njit(cache=True)
+def aux(S, P, out):
+    for r in range(S.shape[0]):
+        _aux(S[r], P[r], out[r])
+'''

@@ -1,0 +1,287 @@
+"""Numeric, batched evaluation of a constrained mechanical system.
+
+:class:`ConstrainedSystem` is the public face of the core: it compiles the symbolic law once
+(cached on disk) and evaluates ``phi``, ``C``, ``G(phi)``, ``u*``, ``u_hat``, the energy and
+RK4 steps for one state (shape ``(2n,)``) or a batch (shape ``(B, 2n)``).  The public methods
+check their arguments; the environments call the compiled kernels (``self.kernels``) directly
+with preallocated buffers, like python-control's checked ``dynamics`` beside a fast ``_rhs``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Literal
+
+import numpy as np
+import sympy as sp
+from numpy.typing import ArrayLike, NDArray
+
+from vnhc_gym.mechanics._kernels import FLAG_NONFINITE, FLAG_SINGULAR
+from vnhc_gym.mechanics.codegen import generate_source, load_module
+from vnhc_gym.mechanics.constraint import (
+    HolonomicConstraint,
+    SymbolicLaw,
+    VelocityConstraint,
+    derive_law,
+)
+from vnhc_gym.mechanics.system import MechanicalSystem
+
+__all__ = ["ConstrainedSystem", "SingularControlError", "Feedback", "FLAG_SINGULAR", "FLAG_NONFINITE",
+           "FEEDBACK_MODES"]
+
+Feedback = Literal["open", "continuous", "sampled"]
+#: Integer codes of the feedback modes understood by the compiled RK4 kernel.
+FEEDBACK_MODES: dict[str, int] = {"open": 0, "continuous": 1, "sampled": 2}
+
+Array = NDArray[np.float64]
+
+
+class SingularControlError(ArithmeticError):
+    """The decoupling matrix ``C`` is singular (or ill-conditioned) where the law was asked for.
+
+    Theorem 2 needs ``C`` invertible; where it is not, ``u*`` does not exist.  Raised by
+    :meth:`ConstrainedSystem.control` with ``on_singular="raise"`` (the default).  The
+    attribute ``rows`` holds the indices of the offending batch rows.
+    """
+
+    def __init__(self, rows: NDArray[np.intp]) -> None:
+        self.rows = rows
+        super().__init__(f"decoupling matrix C is singular or ill-conditioned at batch rows {rows.tolist()}; "
+                         "the stabilising law is undefined there (see ConstrainedSystem.singular_tol)")
+
+
+class ConstrainedSystem:
+    """A mechanical control system with a virtual constraint, compiled for fast evaluation.
+
+    Parameters
+    ----------
+    system : MechanicalSystem
+        The symbolic system.
+    constraint : VelocityConstraint or HolonomicConstraint
+        The virtual constraint, with ``system.m`` components.
+    outputs : mapping of str to sympy expression, optional
+        Extra functions of the state and parameters to compile (for example the sea current
+        at the boat), evaluated by :meth:`outputs`.
+    singular_tol : float, default 1e-10
+        ``C`` counts as singular when a pivot of its LU factorisation is at most
+        ``singular_tol * max(1, max|C|)``.
+
+    Notes
+    -----
+    States are ``s = (q, qd)`` of length ``2n``.  Parameters are a vector in the order of
+    ``param_names``; every method takes ``params=None`` (defaults), a vector, or a
+    ``(B, n_params)`` batch.
+    """
+
+    def __init__(self, system: MechanicalSystem, constraint: VelocityConstraint | HolonomicConstraint,
+                 outputs: Mapping[str, sp.Expr] | None = None, singular_tol: float = 1e-10) -> None:
+        if not singular_tol > 0:
+            raise ValueError(f"singular_tol must be > 0, got {singular_tol}")
+        self.system = system
+        self.constraint = constraint
+        self.singular_tol = float(singular_tol)
+        self.output_names = tuple(outputs or {})
+        self._outputs = dict(outputs or {})
+        self._law: SymbolicLaw | None = None
+        holonomic = isinstance(constraint, HolonomicConstraint)
+        expr = constraint.phi_h if isinstance(constraint, HolonomicConstraint) else constraint.phi
+        key = [system.name, sp.srepr(system.q), sp.srepr(system.qd), sp.srepr(system.mass_matrix),
+               sp.srepr(system.control_forces), sp.srepr(system.potential), sp.srepr(system.external_force),
+               sp.srepr(tuple(system.params)), str(holonomic), sp.srepr(expr),
+               sp.srepr(tuple(self._outputs.items()))]
+        self.kernels = load_module(key, lambda: generate_source(self.symbolic, self._outputs))
+        self.n = system.n
+        self.m = system.m
+        self.n_gains = int(self.kernels.NG)
+        self.holonomic = holonomic
+        self.param_names = tuple(str(p) for p in system.params)
+        self.default_params = np.asarray(system.default_param_values(), dtype=np.float64)
+
+    # ------------------------------------------------------------------ symbolic side
+    @property
+    def symbolic(self) -> SymbolicLaw:
+        """The symbolic law (derived lazily: a warm start from the cache never needs it)."""
+        if self._law is None:
+            self._law = derive_law(self.system, self.constraint)
+        return self._law
+
+    def params(self, **overrides: float) -> Array:
+        """Parameter vector with named overrides, e.g. ``params(m=3.0)``."""
+        return np.asarray(self.system.default_param_values(overrides), dtype=np.float64)
+
+    # ------------------------------------------------------------------ argument checks
+    def _states(self, state: ArrayLike) -> tuple[Array, bool]:
+        s = np.asarray(state, dtype=np.float64)
+        single = s.ndim == 1
+        s2 = np.ascontiguousarray(s.reshape(1, -1) if single else s)
+        if s2.ndim != 2 or s2.shape[1] != 2 * self.n:
+            raise ValueError(f"state must have shape (2n,) or (B, 2n) with 2n = {2 * self.n}, got {s.shape}")
+        return s2, single
+
+    def _rows(self, value: ArrayLike | None, batch: int, width: int, name: str, default: Array) -> Array:
+        v = default if value is None else np.asarray(value, dtype=np.float64)
+        if v.ndim == 0:
+            v = np.full(width, float(v))
+        if v.ndim == 1:
+            if v.shape[0] != width:
+                raise ValueError(f"{name} must have {width} entries (or shape (B, {width})), got {v.shape}")
+            return np.ascontiguousarray(np.broadcast_to(v, (batch, width)))
+        if v.shape != (batch, width):
+            raise ValueError(f"{name} must have shape ({width},) or ({batch}, {width}), got {v.shape}")
+        return np.ascontiguousarray(v)
+
+    def _params(self, params: ArrayLike | None, batch: int) -> Array:
+        return self._rows(params, batch, len(self.param_names), "params", self.default_params)
+
+    def _gains(self, gains: ArrayLike | None, batch: int) -> Array:
+        k = self._rows(gains, batch, self.n_gains, "gains", np.ones(self.n_gains))
+        if not np.all(np.isfinite(k)) or np.any(k < 0):
+            raise ValueError("gains must be finite and >= 0")
+        return k
+
+    @staticmethod
+    def _out(x: Array, single: bool) -> Array:
+        return x[0] if single else x
+
+    # ------------------------------------------------------------------ evaluation
+    def phi(self, state: ArrayLike, params: ArrayLike | None = None) -> Array:
+        """Velocity constraint ``phi(q, qd)`` (``psi = d phi_h/dt`` if holonomic), shape ``(..., m)``."""
+        s, single = self._states(state)
+        out = np.empty((s.shape[0], self.m))
+        self.kernels.phi(s, self._params(params, s.shape[0]), out)
+        return self._out(out, single)
+
+    def phi_h(self, state: ArrayLike, params: ArrayLike | None = None) -> Array:
+        """Holonomic constraint values ``phi_h(q)``; only for a holonomic constraint."""
+        if not self.holonomic:
+            raise ValueError("phi_h is only defined for a HolonomicConstraint")
+        s, single = self._states(state)
+        out = np.empty((s.shape[0], self.m))
+        self.kernels.phi_h(s, self._params(params, s.shape[0]), out)
+        return self._out(out, single)
+
+    def decoupling(self, state: ArrayLike, params: ArrayLike | None = None) -> tuple[Array, Array]:
+        """``(C, G(phi))``: ``C[b, a] = d phi^b/d qd . Y^a`` and the Lie derivative along the drift."""
+        s, single = self._states(state)
+        b = s.shape[0]
+        c = np.empty((b, self.m, self.m))
+        g = np.empty((b, self.m))
+        self.kernels.cg(s, self._params(params, b), c, g)
+        return self._out(c, single), self._out(g, single)
+
+    def dynamics(self, state: ArrayLike, params: ArrayLike | None = None) -> tuple[Array, Array]:
+        """``(a0, Y)``: drift acceleration ``(..., n)`` and input fields ``(..., n, m)``."""
+        s, single = self._states(state)
+        b = s.shape[0]
+        a0 = np.empty((b, self.n))
+        y = np.empty((b, self.n, self.m))
+        self.kernels.dyn(s, self._params(params, b), a0, y)
+        return self._out(a0, single), self._out(y, single)
+
+    def acceleration(self, state: ArrayLike, u: ArrayLike, params: ArrayLike | None = None) -> Array:
+        """``qdd = a0 + Y u`` for a given control."""
+        a0, y = self.dynamics(state, params)
+        return a0 + np.einsum("...ia,...a->...i", y, np.asarray(u, dtype=np.float64))
+
+    def energy(self, state: ArrayLike, params: ArrayLike | None = None) -> Array | float:
+        """Mechanical energy ``1/2 qd^T M qd + V(q)``."""
+        s, single = self._states(state)
+        out = np.empty(s.shape[0])
+        self.kernels.energy(s, self._params(params, s.shape[0]), out)
+        return float(out[0]) if single else out
+
+    def outputs(self, state: ArrayLike, params: ArrayLike | None = None) -> Array:
+        """The extra compiled outputs, in the order of ``output_names``."""
+        s, single = self._states(state)
+        out = np.empty((s.shape[0], len(self.output_names)))
+        self.kernels.aux(s, self._params(params, s.shape[0]), out)
+        return self._out(out, single)
+
+    def control(self, state: ArrayLike, gains: ArrayLike | None = None, params: ArrayLike | None = None,
+                on_singular: Literal["raise", "flag"] = "raise") -> Array | tuple[Array, NDArray[np.bool_]]:
+        """The stabilising law ``u* = C^-1 (-K phi - G(phi))``.
+
+        Parameters
+        ----------
+        state : array_like, shape (2n,) or (B, 2n)
+        gains : array_like, optional
+            ``diag K`` (``m`` values; ``2m`` values ``diag K1, diag K2`` for a holonomic
+            constraint); a scalar applies to all.  Default 1.  ``gains=0`` gives ``u_hat``.
+        params : array_like, optional
+        on_singular : {"raise", "flag"}
+            ``"raise"``: raise :class:`SingularControlError` if ``C`` is singular at any row.
+            ``"flag"``: return ``(u, singular)``, with ``u = 0`` on singular rows.
+        """
+        if on_singular not in ("raise", "flag"):
+            raise ValueError(f"on_singular must be 'raise' or 'flag', got {on_singular!r}")
+        s, single = self._states(state)
+        b = s.shape[0]
+        u = np.empty((b, self.m))
+        flags = np.empty(b, dtype=np.int64)
+        self.kernels.law(s, self._params(params, b), self._gains(gains, b), self.singular_tol, u, flags)
+        singular = (flags & FLAG_SINGULAR) != 0
+        if on_singular == "raise":
+            if singular.any():
+                raise SingularControlError(np.flatnonzero(singular))
+            return self._out(u, single)
+        return self._out(u, single), (singular[0] if single else singular)
+
+    def invariance_control(self, state: ArrayLike, params: ArrayLike | None = None) -> Array:
+        """The invariance control ``u_hat = -C^-1 G(phi)`` (``u*`` with ``K = 0``)."""
+        out = self.control(state, gains=0.0, params=params)
+        assert isinstance(out, np.ndarray)  # on_singular="raise" returns an array
+        return out
+
+    # ------------------------------------------------------------------ integration
+    def step(self, state: ArrayLike, dt: float, *, u: ArrayLike | None = None, feedback: Feedback = "open",
+             gains: ArrayLike | None = None, params: ArrayLike | None = None, substeps: int = 1,
+             u_bounds: tuple[ArrayLike, ArrayLike] | None = None) -> tuple[Array, Array, NDArray[np.int64]]:
+        """Advance by one control period ``dt`` with ``substeps`` RK4 steps.
+
+        Parameters
+        ----------
+        state : array_like, shape (2n,) or (B, 2n)
+        dt : float
+            Control period (seconds), > 0.
+        u : array_like, optional
+            Held control (``open``) or held addition to the law (``continuous``/``sampled``).
+        feedback : {"open", "continuous", "sampled"}
+            ``open``: apply ``u`` only.  ``continuous``: re-evaluate ``u*`` at every RK4 stage
+            (the theorem's setting).  ``sampled``: evaluate ``u*`` once at the start of the
+            period and hold it (zero-order hold, as an RL environment applies an action).
+        u_bounds : (lower, upper), optional
+            Saturation applied to the total control at every stage.
+
+        Returns
+        -------
+        (new_state, u_applied, flags)
+            ``u_applied`` is the applied control averaged over the substeps' first stages.
+            ``flags`` per row: bit ``FLAG_SINGULAR`` if ``C`` was singular at some evaluation
+            (``u*`` then taken as 0 there), bit ``FLAG_NONFINITE`` if the state became non-finite.
+        """
+        if feedback not in FEEDBACK_MODES:
+            raise ValueError(f"feedback must be one of {sorted(FEEDBACK_MODES)}, got {feedback!r}")
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt must be a finite number > 0, got {dt}")
+        if int(substeps) != substeps or substeps < 1:
+            raise ValueError(f"substeps must be an integer >= 1, got {substeps}")
+        s, single = self._states(state)
+        b = s.shape[0]
+        uh = self._rows(u, b, self.m, "u", np.zeros(self.m))
+        if u_bounds is None:
+            lo, hi = np.full(self.m, -np.inf), np.full(self.m, np.inf)
+        else:
+            lo = np.broadcast_to(np.asarray(u_bounds[0], dtype=np.float64), (self.m,)).copy()
+            hi = np.broadcast_to(np.asarray(u_bounds[1], dtype=np.float64), (self.m,)).copy()
+            if np.any(lo > hi):
+                raise ValueError("u_bounds: lower bound exceeds upper bound")
+        out = np.empty_like(s)
+        u_out = np.empty((b, self.m))
+        flags = np.empty(b, dtype=np.int64)
+        self.kernels.rk4(s, self._params(params, b), uh, self._gains(gains, b), FEEDBACK_MODES[feedback], lo, hi,
+                         float(dt), int(substeps), self.singular_tol, out, u_out, flags)
+        return self._out(out, single), self._out(u_out, single), (flags[0] if single else flags)
+
+    def __repr__(self) -> str:
+        kind = "holonomic" if self.holonomic else "velocity"
+        return f"ConstrainedSystem({self.system.name!r}, n={self.n}, m={self.m}, {kind} constraint)"
