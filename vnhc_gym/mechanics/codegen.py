@@ -27,7 +27,7 @@ from vnhc_gym.mechanics.constraint import SymbolicLaw
 
 __all__ = ["cache_dir", "generate_source", "load_module", "CODEGEN_VERSION"]
 
-CODEGEN_VERSION = "7"
+CODEGEN_VERSION = "10"
 _LOCK = threading.Lock()
 _LOADED: dict[str, ModuleType] = {}
 
@@ -46,7 +46,7 @@ class _Printer(PythonCodePrinter):
         base, exp = expr.args
         if exp.is_Integer and 1 < int(exp) <= 4:
             b = self.parenthesize(base, 100)
-            return "*".join([b] * int(exp))
+            return "(" + "*".join([b] * int(exp)) + ")"  # parenthesised: it may follow a "/"
         if exp.is_Integer and -4 <= int(exp) <= -1:
             b = self.parenthesize(base, 100)
             return "1.0/(" + "*".join([b] * -int(exp)) + ")"
@@ -249,8 +249,8 @@ def _deriv(s, p, u, a0, Y, ds):
 
 @njit(cache=True, inline="always")
 def _work():
-    # One allocation per call (not per row): 16 work vectors, then Y and C.
-    W = np.empty((16, max(2 * N, NP, NG)))
+    # One allocation per call (not per row): 17 work vectors, then Y and C.
+    W = np.empty((17, max(2 * N, NP, NG)))
     return W, np.empty((N, M)), np.empty((M, M))
 
 
@@ -269,11 +269,11 @@ def _finish(r, x, acc, substeps, flag, out, u_out, flags):
 
 
 @njit(cache=True, error_model="numpy")
-def _rows_open(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags):
+def _rows_open(start, stop, S, P, PL, U, K, lo, hi, dt, substeps, tol, out, u_out, flags):
     W, Y, C = _work()
     n2 = 2 * N
     x = W[0, :n2]; k1 = W[1, :n2]; k2 = W[2, :n2]; k3 = W[3, :n2]; k4 = W[4, :n2]; tmp = W[5, :n2]
-    p = W[6, :NP]; kk = W[7, :NG]; uh = W[8, :M]; u = W[9, :M]; ul = W[10, :M]; acc = W[11, :M]
+    p = W[6, :NP]; pl = W[16, :NP]; kk = W[7, :NG]; uh = W[8, :M]; u = W[9, :M]; ul = W[10, :M]; acc = W[11, :M]
     G = W[12, :M]; ph = W[13, :M]; hol = W[14, :M]; a0 = W[15, :N]
     h = dt / substeps
     for r in range(start, stop):
@@ -282,6 +282,7 @@ def _rows_open(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, f
             x[i] = S[r, i]
         for i in range(NP):
             p[i] = P[r, i]
+            pl[i] = PL[r, i]
         for i in range(NG):
             kk[i] = K[r, i]
         for a in range(M):
@@ -313,11 +314,11 @@ def _rows_open(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, f
         _finish(r, x, acc, substeps, flag, out, u_out, flags)
 
 @njit(cache=True, error_model="numpy")
-def _rows_continuous(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags):
+def _rows_continuous(start, stop, S, P, PL, U, K, lo, hi, dt, substeps, tol, out, u_out, flags):
     W, Y, C = _work()
     n2 = 2 * N
     x = W[0, :n2]; k1 = W[1, :n2]; k2 = W[2, :n2]; k3 = W[3, :n2]; k4 = W[4, :n2]; tmp = W[5, :n2]
-    p = W[6, :NP]; kk = W[7, :NG]; uh = W[8, :M]; u = W[9, :M]; ul = W[10, :M]; acc = W[11, :M]
+    p = W[6, :NP]; pl = W[16, :NP]; kk = W[7, :NG]; uh = W[8, :M]; u = W[9, :M]; ul = W[10, :M]; acc = W[11, :M]
     G = W[12, :M]; ph = W[13, :M]; hol = W[14, :M]; a0 = W[15, :N]
     h = dt / substeps
     for r in range(start, stop):
@@ -326,13 +327,14 @@ def _rows_continuous(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_
             x[i] = S[r, i]
         for i in range(NP):
             p[i] = P[r, i]
+            pl[i] = PL[r, i]
         for i in range(NG):
             kk[i] = K[r, i]
         for a in range(M):
             uh[a] = U[r, a]
             acc[a] = 0.0
         for _ in range(substeps):
-            flag |= _law(x, p, kk, tol, C, G, ph, hol, ul)
+            flag |= _law(x, pl, kk, tol, C, G, ph, hol, ul)
             for a in range(M):
                 u[a] = min(max(ul[a] + uh[a], lo[a]), hi[a])
             for a in range(M):
@@ -340,19 +342,19 @@ def _rows_continuous(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_
             _deriv(x, p, u, a0, Y, k1)
             for i in range(n2):
                 tmp[i] = x[i] + 0.5 * h * k1[i]
-            flag |= _law(tmp, p, kk, tol, C, G, ph, hol, ul)
+            flag |= _law(tmp, pl, kk, tol, C, G, ph, hol, ul)
             for a in range(M):
                 u[a] = min(max(ul[a] + uh[a], lo[a]), hi[a])
             _deriv(tmp, p, u, a0, Y, k2)
             for i in range(n2):
                 tmp[i] = x[i] + 0.5 * h * k2[i]
-            flag |= _law(tmp, p, kk, tol, C, G, ph, hol, ul)
+            flag |= _law(tmp, pl, kk, tol, C, G, ph, hol, ul)
             for a in range(M):
                 u[a] = min(max(ul[a] + uh[a], lo[a]), hi[a])
             _deriv(tmp, p, u, a0, Y, k3)
             for i in range(n2):
                 tmp[i] = x[i] + h * k3[i]
-            flag |= _law(tmp, p, kk, tol, C, G, ph, hol, ul)
+            flag |= _law(tmp, pl, kk, tol, C, G, ph, hol, ul)
             for a in range(M):
                 u[a] = min(max(ul[a] + uh[a], lo[a]), hi[a])
             _deriv(tmp, p, u, a0, Y, k4)
@@ -361,11 +363,11 @@ def _rows_continuous(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_
         _finish(r, x, acc, substeps, flag, out, u_out, flags)
 
 @njit(cache=True, error_model="numpy")
-def _rows_sampled(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags):
+def _rows_sampled(start, stop, S, P, PL, U, K, lo, hi, dt, substeps, tol, out, u_out, flags):
     W, Y, C = _work()
     n2 = 2 * N
     x = W[0, :n2]; k1 = W[1, :n2]; k2 = W[2, :n2]; k3 = W[3, :n2]; k4 = W[4, :n2]; tmp = W[5, :n2]
-    p = W[6, :NP]; kk = W[7, :NG]; uh = W[8, :M]; u = W[9, :M]; ul = W[10, :M]; acc = W[11, :M]
+    p = W[6, :NP]; pl = W[16, :NP]; kk = W[7, :NG]; uh = W[8, :M]; u = W[9, :M]; ul = W[10, :M]; acc = W[11, :M]
     G = W[12, :M]; ph = W[13, :M]; hol = W[14, :M]; a0 = W[15, :N]
     h = dt / substeps
     for r in range(start, stop):
@@ -374,12 +376,13 @@ def _rows_sampled(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out
             x[i] = S[r, i]
         for i in range(NP):
             p[i] = P[r, i]
+            pl[i] = PL[r, i]
         for i in range(NG):
             kk[i] = K[r, i]
         for a in range(M):
             uh[a] = U[r, a]
             acc[a] = 0.0
-        flag |= _law(x, p, kk, tol, C, G, ph, hol, ul)
+        flag |= _law(x, pl, kk, tol, C, G, ph, hol, ul)
         for a in range(M):
             uh[a] += ul[a]
         for _ in range(substeps):
@@ -409,13 +412,13 @@ def _rows_sampled(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out
 
 
 @njit(cache=True)
-def _rows(mode, start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags):
+def _rows(mode, start, stop, S, P, PL, U, K, lo, hi, dt, substeps, tol, out, u_out, flags):
     if mode == 0:
-        _rows_open(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags)
+        _rows_open(start, stop, S, P, PL, U, K, lo, hi, dt, substeps, tol, out, u_out, flags)
     elif mode == 1:
-        _rows_continuous(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags)
+        _rows_continuous(start, stop, S, P, PL, U, K, lo, hi, dt, substeps, tol, out, u_out, flags)
     else:
-        _rows_sampled(start, stop, S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags)
+        _rows_sampled(start, stop, S, P, PL, U, K, lo, hi, dt, substeps, tol, out, u_out, flags)
 
 
 @njit(cache=True)
@@ -426,7 +429,7 @@ def rk4(S, P, U, K, mode, lo, hi, dt, substeps, tol, out, u_out, flags):
     RK4 stage.  mode 2 (sampled): u = clip(u*(start) + U), evaluated once and held over the
     control period dt (split into `substeps` RK4 steps).  u_out gets the mean applied control.
     """
-    _rows(mode, 0, S.shape[0], S, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags)
+    _rows(mode, 0, S.shape[0], S, P, P, U, K, lo, hi, dt, substeps, tol, out, u_out, flags)
 
 
 @njit(cache=True, parallel=True)
@@ -434,8 +437,39 @@ def rk4_parallel(S, P, U, K, mode, lo, hi, dt, substeps, tol, out, u_out, flags,
     """rk4 split into n_chunks row blocks run on numba's thread pool."""
     B = S.shape[0]
     for c in prange(n_chunks):
-        _rows(mode, c * B // n_chunks, (c + 1) * B // n_chunks, S, P, U, K, lo, hi, dt, substeps, tol,
+        _rows(mode, c * B // n_chunks, (c + 1) * B // n_chunks, S, P, P, U, K, lo, hi, dt, substeps, tol,
               out, u_out, flags)
+
+
+@njit(cache=True)
+def _advance_rows(start, stop, S, P, U, K, mode, lo, hi, dt, substeps, tol, NEXT, u_out, flags, DV, PHI, PA, AUX):
+    _rows(mode, start, stop, S, P, PA, U, K, lo, hi, dt, substeps, tol, NEXT, u_out, flags)
+    for r in range(start, stop):
+        for j in range(N):
+            NEXT[r, N + j] += DV[r, j]
+        if (flags[r] & FLAG_NONFINITE) == 0:
+            for j in range(2 * N):
+                S[r, j] = NEXT[r, j]
+        _phi(S[r], P[r], PHI[r])
+        _aux(S[r], PA[r], AUX[r])
+
+
+@njit(cache=True)
+def advance(S, P, U, K, mode, lo, hi, dt, substeps, tol, NEXT, u_out, flags, DV, PHI, PA, AUX):
+    """One environment step for all rows: rk4 into NEXT, add velocity kicks DV (B, N), accept
+    finite rows into S (rows with FLAG_NONFINITE keep their old state), then phi(S, P) -> PHI and
+    the extra outputs aux(S, PA) -> AUX.  P drives the dynamics; PA (e.g. the nominal model a
+    controller is told) is used by the in-loop law (modes 1, 2) and the extra outputs."""
+    _advance_rows(0, S.shape[0], S, P, U, K, mode, lo, hi, dt, substeps, tol, NEXT, u_out, flags, DV, PHI, PA, AUX)
+
+
+@njit(cache=True, parallel=True)
+def advance_parallel(S, P, U, K, mode, lo, hi, dt, substeps, tol, NEXT, u_out, flags, DV, PHI, PA, AUX, n_chunks):
+    """advance split into n_chunks row blocks on numba's thread pool."""
+    B = S.shape[0]
+    for c in prange(n_chunks):
+        _advance_rows(c * B // n_chunks, (c + 1) * B // n_chunks, S, P, U, K, mode, lo, hi, dt, substeps, tol,
+                      NEXT, u_out, flags, DV, PHI, PA, AUX)
 
 
 @njit(cache=True)

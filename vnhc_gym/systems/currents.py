@@ -9,6 +9,7 @@ name           C(x, y)                                       parameters (default
 =============  ============================================  ==================================
 northeast      (c1, c2)                                      c1 = 1, c2 = 1  (paper)
 anticyclone    a (y, -x + y)                                 a = 1  (paper)
+affine         (c1 + j11 x + j12 y, c2 + j21 x + j22 y)       all 0
 vortex         G/(2 pi) (-(y - y0), x - x0) / (r^2 + rc^2)   G = 4 pi, x0 = y0 = 0, rc = 1
 shear          (u0 + s y, 0)                                 u0 = 0.5, s = 0.2
 random         (d psi/dy, -d psi/dx),                        6 modes drawn from a seed
@@ -124,6 +125,10 @@ CURRENTS: dict[str, CurrentField] = {
                               "uniform current (c1, c2); the paper's north-east case is (1, 1)"),
     "anticyclone": CurrentField("anticyclone", {"a": 1.0}, lambda x, y, p: (p["a"] * y, p["a"] * (-x + y)),
                                 "linear anticyclone a (y, -x + y) (paper); spirals outward"),
+    "affine": CurrentField(
+        "affine", {"c1": 0.0, "c2": 0.0, "j11": 0.0, "j12": 0.0, "j21": 0.0, "j22": 0.0},
+        lambda x, y, p: (p["c1"] + p["j11"] * x + p["j12"] * y, p["c2"] + p["j21"] * x + p["j22"] * y),
+        "general affine field c + J (x, y); a local model of any field (used by the sampled-data baseline)"),
     "vortex": CurrentField(
         "vortex", {"gamma": float(4 * np.pi), "x0": 0.0, "y0": 0.0, "rc": 1.0},
         lambda x, y, p: (-p["gamma"] / (2 * sp.pi) * (y - p["y0"]) / ((x - p["x0"]) ** 2 + (y - p["y0"]) ** 2 + p["rc"] ** 2),

@@ -1,0 +1,362 @@
+"""Batched episode logic shared by the single environments and their vector versions.
+
+A :class:`ConstraintTask` holds ``B`` independent episodes of one system as float64 arrays
+and advances them all with one compiled RK4 call.  ``FlockingAlignEnv`` and ``USVStreamEnv``
+use a task with ``B = 1``; the vector environments use the same task with ``B = num_envs``, so
+both run the same dynamics, observation, reward and termination code (no CartPole-style
+duplication).  Randomness comes from one ``numpy.random.Generator`` per row (the env's
+``np_random``), so a vector env reproduces ``N`` single envs seeded alike, bit for bit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, replace
+from typing import Any, ClassVar
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from vnhc_gym.mechanics import FEEDBACK_MODES, FLAG_NONFINITE, ConstrainedSystem
+
+__all__ = ["TaskConfig", "ConstraintTask", "check_action", "resolve_config", "SCENARIOS"]
+
+Array = NDArray[np.float64]
+
+#: Scenario name -> overrides of TaskConfig fields (documented in each env's docstring).
+SCENARIOS: dict[str, dict[str, Any]] = {
+    "nominal": {},
+    "saturated": {"force_bound_scale": 0.05},
+    "mismatch": {"param_mismatch": 0.3},
+    "noisy": {"obs_noise": 0.02},
+    "coarse": {"dt": 0.1, "substeps": 4},
+    "disturbance": {"impulse_prob": 0.05},
+}
+
+
+@dataclass(frozen=True)
+class TaskConfig:
+    """Keyword arguments common to both environments (see the env docstrings).
+
+    Attributes
+    ----------
+    dt : float
+        Control period in seconds (the action is held over it).
+    substeps : int
+        RK4 steps per control period.
+    force_bound : float or None
+        Largest absolute force (``None``: the env's default).
+    force_bound_scale : float
+        Multiplies ``force_bound`` (the ``saturated`` scenario uses 0.05).
+    phi_scale : float
+        ``|phi|`` is divided by this in the reward.
+    action_cost : float
+        Weight ``c_u`` of ``mean(a^2)`` in the reward.
+    reward_clip : float
+        Rewards are clipped to ``[-reward_clip, 0]`` (a diverging episode cannot dominate a batch).
+    param_mismatch : float
+        Relative half-width ``delta``: each episode the true physical parameters are the
+        nominal ones times ``U(1 - delta, 1 + delta)`` (independently per parameter).
+    obs_noise : float
+        Standard deviation of Gaussian noise added to every observation entry.
+    impulse_prob : float
+        Probability per step of a random velocity impulse.
+    impulse_scale : float or None
+        Standard deviation of an impulse's velocity change (``None``: the env's default).
+    obs_clip : float
+        Observations are clipped to ``[-obs_clip, obs_clip]`` (the observation space).
+    """
+
+    dt: float = 0.05
+    substeps: int = 1
+    force_bound: float | None = None
+    force_bound_scale: float = 1.0
+    phi_scale: float = 1.0
+    action_cost: float = 0.0
+    reward_clip: float = 100.0
+    param_mismatch: float = 0.0
+    obs_noise: float = 0.0
+    impulse_prob: float = 0.0
+    impulse_scale: float | None = None
+    obs_clip: float = 10.0
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the first invalid argument."""
+        def positive(name: str, value: float | None, allow_none: bool = False) -> None:
+            if value is None and allow_none:
+                return
+            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+
+        def nonneg(name: str, value: float) -> None:
+            if not (isinstance(value, int | float) and np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+
+        positive("dt", self.dt)
+        if not (isinstance(self.substeps, int | np.integer) and not isinstance(self.substeps, bool)
+                and self.substeps >= 1):
+            raise ValueError(f"substeps must be an integer >= 1, got {self.substeps!r}")
+        positive("force_bound", self.force_bound, allow_none=True)
+        positive("force_bound_scale", self.force_bound_scale)
+        positive("phi_scale", self.phi_scale)
+        nonneg("action_cost", self.action_cost)
+        positive("reward_clip", self.reward_clip)
+        nonneg("param_mismatch", self.param_mismatch)
+        if self.param_mismatch >= 1:
+            raise ValueError(f"param_mismatch must be < 1 (parameters stay positive), got {self.param_mismatch}")
+        nonneg("obs_noise", self.obs_noise)
+        nonneg("impulse_prob", self.impulse_prob)
+        if self.impulse_prob > 1:
+            raise ValueError(f"impulse_prob must be <= 1, got {self.impulse_prob}")
+        positive("impulse_scale", self.impulse_scale, allow_none=True)
+        positive("obs_clip", self.obs_clip)
+
+
+def resolve_config(cls: type[TaskConfig], scenario: str, kwargs: Mapping[str, Any]) -> tuple[TaskConfig, dict[str, Any]]:
+    """Build a config from a scenario's overrides, then explicit keyword arguments.
+
+    Returns the config and the keyword arguments that are not config fields (env-specific).
+    """
+    if scenario not in SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; valid names: {sorted(SCENARIOS)}")
+    names = {f.name for f in fields(cls)}
+    own = {k: v for k, v in kwargs.items() if k in names}
+    rest = {k: v for k, v in kwargs.items() if k not in names}
+    config = replace(cls(), **{**SCENARIOS[scenario], **own})
+    config.validate()
+    return config, rest
+
+
+@njit(cache=True)
+def check_action(action: np.ndarray, out: np.ndarray, row: int, bound: np.ndarray) -> bool:
+    """Copy ``clip(action, -1, 1) * bound`` into ``out[row]``; False (nothing written) if non-finite."""
+    for i in range(action.shape[0]):
+        if not np.isfinite(action[i]):
+            return False
+    for i in range(action.shape[0]):
+        out[row, i] = min(max(action[i], -1.0), 1.0) * bound[i]
+    return True
+
+
+STATUS_OK = 0
+STATUS_NONFINITE = 1  #: the integrated state was not finite (row kept its last finite state)
+STATUS_INVALID = 2  #: the system left its physically valid region (env-specific)
+REASONS = {STATUS_NONFINITE: "non_finite_state", STATUS_INVALID: "out_of_domain"}
+#: Batches at least this large step on numba's thread pool.
+PARALLEL_MIN_ROWS = 256
+
+
+@njit(cache=True)
+def _fill_kicks(dv, kick_u, kick_v, cursor, prob):
+    for r in range(dv.shape[0]):
+        c = cursor[r]
+        hit = kick_u[r, c] < prob
+        for j in range(dv.shape[1]):
+            dv[r, j] = kick_v[r, c, j] if hit else 0.0
+
+
+@njit(cache=True)
+def _finish(obs, noise, cursor, use_cursor, add_noise, clip, phi, action, status, phi_scale, action_cost, reward_clip,
+            reward, abs_phi, steps, obs32, chunk):
+    """Noise, reward, step counters and the float32 copy of the observations; returns the number
+    of rows whose pre-drawn noise is used up."""
+    m = phi.shape[1]
+    exhausted = 0
+    for r in range(phi.shape[0]):
+        steps[r] += 1
+        if use_cursor:
+            c = cursor[r] + 1
+            cursor[r] = c
+            if c >= chunk:
+                exhausted += 1
+            elif add_noise:
+                for j in range(obs.shape[1]):
+                    obs[r, j] = min(max(obs[r, j] + noise[r, c, j], -clip), clip)
+        acc = 0.0
+        for b in range(m):
+            acc += abs(phi[r, b])
+        abs_phi[r] = acc / m
+        cost = 0.0
+        for b in range(action.shape[1]):
+            cost += action[r, b] * action[r, b]
+        rew = -abs_phi[r] / phi_scale - action_cost * cost / action.shape[1]
+        if status[r] == STATUS_NONFINITE or not rew == rew:
+            rew = -reward_clip
+        reward[r] = min(max(rew, -reward_clip), 0.0)
+        for j in range(obs.shape[1]):
+            obs32[r, j] = obs[r, j]
+    return exhausted
+
+
+class ConstraintTask:
+    """``B`` episodes of a constrained system, stepped together.
+
+    Subclasses set ``obs_dim`` and implement :meth:`sample_episode` (initial state and true /
+    nominal parameters for one row), :meth:`observe` (observations and status of all rows from
+    the compiled kernels' flags) and :meth:`impulse_mask` (which velocity entries impulses kick).
+    """
+
+    obs_dim: int
+    noise_chunk: ClassVar[int] = 256
+
+    def __init__(self, model: ConstrainedSystem, config: TaskConfig, force_bound: Array, n: int,
+                 default_impulse: float) -> None:
+        self.model = model
+        self.config = config
+        self.n = n
+        self.k = model.kernels
+        self._advance = self.k.advance_parallel if n >= PARALLEL_MIN_ROWS else self.k.advance
+        self._extra = (2,) if n >= PARALLEL_MIN_ROWS else ()
+        self.force_bound = np.ascontiguousarray(force_bound, dtype=np.float64) * config.force_bound_scale
+        m, dim, n_p = model.m, 2 * model.n, len(model.param_names)
+        self.state = np.zeros((n, dim))
+        self.next_state = np.zeros((n, dim))
+        self.params_true = np.tile(model.default_params, (n, 1))
+        self.params_nominal = np.tile(model.default_params, (n, 1))
+        self.force = np.zeros((n, m))
+        self.force_applied = np.zeros((n, m))
+        self.action = np.zeros((n, m))
+        self.phi = np.zeros((n, m))
+        self.aux = np.zeros((n, len(model.output_names)))
+        self.obs = np.zeros((n, self.obs_dim))
+        self.obs32 = np.zeros((n, self.obs_dim), dtype=np.float32)
+        self.reward = np.zeros(n)
+        self.abs_phi = np.zeros(n)
+        self.status = np.zeros(n, dtype=np.int64)
+        self.flags = np.zeros(n, dtype=np.int64)
+        self.steps = np.zeros(n, dtype=np.int64)
+        self.dv = np.zeros((n, model.n))
+        self._gains = np.zeros((n, model.n_gains))
+        self._lo = -self.force_bound
+        self._hi = self.force_bound.copy()
+        assert n_p == self.params_true.shape[1]
+        self.impulse_scale = config.impulse_scale if config.impulse_scale is not None else default_impulse
+        self._noisy = config.obs_noise > 0
+        self._kicks = config.impulse_prob > 0
+        # Pre-drawn per-row noise, consumed one entry per step: a row's random stream depends
+        # only on its own generator, so vector and single envs agree exactly.
+        self._noise = np.zeros((n, self.noise_chunk, self.obs_dim)) if self._noisy else np.zeros((n, 1, 1))
+        self._kick_u = np.ones((n, self.noise_chunk)) if self._kicks else None
+        self._kick_v = np.zeros((n, self.noise_chunk, model.n)) if self._kicks else None
+        self._cursor = np.zeros(n, dtype=np.int64)
+        # Every buffer above is only ever written in place, so the kernels' argument tuples are
+        # built once (attribute look-ups cost as much as the physics at batch 1).
+        cfg = config
+        self._advance_args = (self.state, self.params_true, self.force, self._gains, 0, self._lo, self._hi, cfg.dt,
+                              cfg.substeps, model.singular_tol, self.next_state, self.force_applied, self.flags,
+                              self.dv, self.phi, self.params_nominal, self.aux, *self._extra)
+        self._finish_args = (self.obs, self._noise, self._cursor, self._noisy or self._kicks, self._noisy,
+                             cfg.obs_clip, self.phi, self.action, self.status, cfg.phi_scale, cfg.action_cost,
+                             cfg.reward_clip, self.reward, self.abs_phi, self.steps, self.obs32, self.noise_chunk)
+        self.feedback = "open"
+        self._kick_args = None if self._kick_u is None else (self.dv, self._kick_u, self._kick_v, self._cursor,
+                                                               cfg.impulse_prob)
+
+    def set_feedback(self, feedback: str = "open", gains: Any = 1.0) -> None:
+        """Run the geometric law inside the integrator, on top of the held force.
+
+        ``"continuous"`` re-evaluates ``u*`` (with the *nominal* parameters and the true state)
+        at every RK4 stage, ``"sampled"`` once per control period; ``"open"`` (default) turns it
+        off.  The total force is clipped to the force bound at every stage.
+        """
+        if feedback not in FEEDBACK_MODES:
+            raise ValueError(f"feedback must be one of {sorted(FEEDBACK_MODES)}, got {feedback!r}")
+        k = np.broadcast_to(np.asarray(gains, dtype=np.float64), (self.model.n_gains,))
+        if not np.all(np.isfinite(k)) or np.any(k < 0):
+            raise ValueError(f"gains must be finite and >= 0, got {gains!r}")
+        self._gains[:] = k
+        args = list(self._advance_args)
+        args[4] = FEEDBACK_MODES[feedback]
+        self._advance_args = tuple(args)
+        self.feedback = feedback
+
+    # ------------------------------------------------------------------ hooks
+    def sample_episode(self, rng: np.random.Generator) -> tuple[Array, Array, Array]:
+        """``(state, params_true, params_nominal)`` of one new episode."""
+        raise NotImplementedError
+
+    def observe(self) -> None:
+        """Fill ``self.obs`` (clipped float64) and ``self.status`` from ``self.flags`` for all rows."""
+        raise NotImplementedError
+
+    def impulse_mask(self) -> Array:
+        """``(n,)`` weights of the velocity entries that impulses kick (0 = never)."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ shared logic
+    def mismatch(self, rng: np.random.Generator, nominal: Array, which: NDArray[np.bool_]) -> Array:
+        """True parameters: nominal times ``U(1 - delta, 1 + delta)`` where ``which`` is True."""
+        delta = self.config.param_mismatch
+        if delta == 0:
+            return nominal.copy()
+        factor = 1.0 + delta * rng.uniform(-1.0, 1.0, size=nominal.shape)
+        return np.where(which, nominal * factor, nominal)
+
+    def _refill(self, i: int, rng: np.random.Generator) -> None:
+        if self._noisy:
+            self._noise[i] = rng.normal(0.0, self.config.obs_noise, size=self._noise.shape[1:])
+        if self._kick_u is not None and self._kick_v is not None:
+            self._kick_u[i] = rng.uniform(size=self.noise_chunk)
+            self._kick_v[i] = rng.normal(0.0, self.impulse_scale, size=self._kick_v.shape[1:]) * self.impulse_mask()
+        self._cursor[i] = 0
+
+    def reset_row(self, i: int, rng: np.random.Generator) -> None:
+        """Start a new episode in row ``i`` from ``rng`` and refresh row ``i``'s outputs."""
+        state, p_true, p_nom = self.sample_episode(rng)
+        self.state[i] = state
+        self.params_true[i] = p_true
+        self.params_nominal[i] = p_nom
+        self.steps[i] = 0
+        self.force[i] = 0.0
+        self.force_applied[i] = 0.0
+        self.action[i] = 0.0
+        self.flags[i] = 0
+        if self._noisy or self._kicks:
+            self._refill(i, rng)
+        rows = slice(i, i + 1)
+        self.k.phi(self.state[rows], self.params_true[rows], self.phi[rows])
+        self.k.aux(self.state[rows], self.params_nominal[rows], self.aux[rows])
+        self.abs_phi[i] = np.abs(self.phi[i]).mean()
+        self.observe()
+        self.status[i] = STATUS_OK
+        if self._noisy:
+            self.obs[i] = np.clip(self.obs[i] + self._noise[i, 0], -self.config.obs_clip, self.config.obs_clip)
+        self.obs32[i] = self.obs[i]
+
+    def step(self, rngs: list[np.random.Generator]) -> NDArray[np.int64]:
+        """Advance every row one control period with the forces in ``self.force``.
+
+        Returns the per-row status (``STATUS_OK``, ``STATUS_NONFINITE``, ``STATUS_INVALID``).
+        Rows whose state became non-finite keep their last finite state and observation; the
+        non-finite state is left in ``self.next_state``.
+        """
+        if self._kick_args is not None:
+            _fill_kicks(*self._kick_args)
+        self._advance(*self._advance_args)
+        self.observe()
+        exhausted = _finish(*self._finish_args)
+        if exhausted:
+            cfg = self.config
+            for i in np.flatnonzero(self._cursor >= self.noise_chunk):
+                self._refill(int(i), rngs[i])
+                if self._noisy:
+                    self.obs[i] = np.clip(self.obs[i] + self._noise[i, 0], -cfg.obs_clip, cfg.obs_clip)
+                    self.obs32[i] = self.obs[i]
+        return self.status
+
+    def info(self, i: int) -> dict[str, Any]:
+        """The documented per-step ``info`` of row ``i`` (fresh float64 copies)."""
+        info = {
+            "phi": self.phi[i].copy(),
+            "abs_phi": float(self.abs_phi[i]),
+            "state": self.state[i].copy(),
+            "force": self.force_applied[i].copy(),
+            "time": int(self.steps[i]) * self.config.dt,
+        }
+        status = int(self.status[i])
+        if status:
+            info["termination_reason"] = REASONS[status]
+            if status == STATUS_NONFINITE:
+                info["state"] = self.next_state[i].copy()
+        return info

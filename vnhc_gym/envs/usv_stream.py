@@ -1,0 +1,300 @@
+"""``vnhc_gym/USVStream-v0``: hold a boat in a sea current to an affine velocity constraint."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from numba import njit
+from numpy.typing import NDArray
+
+from vnhc_gym.envs.task import STATUS_INVALID, STATUS_NONFINITE, STATUS_OK, ConstraintTask, TaskConfig, check_action, resolve_config
+from vnhc_gym.mechanics import FLAG_NONFINITE
+from vnhc_gym.systems.currents import CURRENTS, get_current, random_field_params
+from vnhc_gym.systems.usv import USV_PRESETS, make_usv
+
+__all__ = ["USVStreamEnv", "USVTask", "USV_OBS_DIM", "VEL_SCALE", "RATE_SCALE"]
+
+USV_OBS_DIM = 14
+VEL_SCALE = 2.0  #: m/s: velocities and currents are divided by this in the observation
+RATE_SCALE = 2.0  #: rad/s: the turn rate is divided by this
+
+
+@njit(cache=True)
+def _observe(S: np.ndarray, aux: np.ndarray, domain: float, clip: float, out: np.ndarray, flags: np.ndarray,
+             status: np.ndarray) -> None:
+    for r in range(S.shape[0]):
+        if flags[r] & FLAG_NONFINITE:
+            status[r] = STATUS_NONFINITE
+        elif abs(S[r, 0]) > domain or abs(S[r, 1]) > domain:
+            status[r] = STATUS_INVALID
+        else:
+            status[r] = STATUS_OK
+        th = S[r, 2]
+        c = math.cos(th)
+        s = math.sin(th)
+        xd = S[r, 3]
+        yd = S[r, 4]
+        c1 = aux[r, 0]
+        c2 = aux[r, 1]
+        out[r, 0] = c
+        out[r, 1] = s
+        out[r, 2] = xd / VEL_SCALE
+        out[r, 3] = yd / VEL_SCALE
+        out[r, 4] = S[r, 5] / RATE_SCALE
+        out[r, 5] = c1 / VEL_SCALE
+        out[r, 6] = c2 / VEL_SCALE
+        out[r, 7] = S[r, 0] / domain
+        out[r, 8] = S[r, 1] / domain
+        out[r, 9] = (s * xd - c * yd + c * c2 - s * c1) / VEL_SCALE  # phi w.r.t. the nominal current
+        for j in range(4):
+            out[r, 10 + j] = aux[r, 2 + j]  # nominal dC1/dx, dC1/dy, dC2/dx, dC2/dy (1/s)
+        for j in range(out.shape[1]):
+            out[r, j] = min(max(out[r, j], -clip), clip)
+
+
+class USVTask(ConstraintTask):
+    """Batched USV episodes (see :class:`USVStreamEnv` for the semantics)."""
+
+    obs_dim = USV_OBS_DIM
+
+    def __init__(self, config: TaskConfig, n: int, *, current: str = "random", current_params: dict | None = None,
+                 mass: float = 10.0, inertia: float = 1.5, domain: float = 50.0, preset: str | None = None) -> None:
+        if preset is not None:
+            if preset not in USV_PRESETS:
+                raise ValueError(f"unknown preset {preset!r}; valid names: {sorted(USV_PRESETS)}")
+            pr = USV_PRESETS[preset]
+            current, mass, inertia, current_params = pr.current, pr.m, pr.inertia, None
+        field = get_current(current)
+        for name, value in (("mass", mass), ("inertia", inertia), ("domain", domain)):
+            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        if current_params is not None:
+            unknown = set(current_params) - set(field.defaults)
+            if unknown:
+                raise ValueError(f"current_params has unknown names {sorted(unknown)} for current {current!r}; "
+                                 f"valid: {sorted(field.defaults)}")
+        self.current = current
+        self.field = field
+        self.preset = preset
+        self.domain = float(domain)
+        self.fixed_field = current != "random" or current_params is not None
+        model = make_usv(current)
+        bound = config.force_bound if config.force_bound is not None else 50.0
+        super().__init__(model, config, np.full(1, bound), n, default_impulse=0.3)
+        names = model.param_names
+        self._cidx = {k: names.index(f"c_{k}") for k in field.defaults}
+        self.nominal = model.params(m=mass, I=inertia, **{f"c_{k}": v for k, v in (current_params or {}).items()})
+        self.params_true[:] = self.nominal
+        self.params_nominal[:] = self.nominal
+        self._mismatch_mask = np.array([n_ in ("m", "I", "current_scale") for n_ in names])
+        self._kick_mask = np.array([1.0, 1.0, 0.0])
+        self._observe_args = (self.state, self.aux, self.domain, config.obs_clip, self.obs, self.flags, self.status)
+
+    def sample_episode(self, rng: np.random.Generator) -> tuple[NDArray[np.float64], ...]:
+        nominal = self.nominal.copy()
+        if not self.fixed_field:
+            for k, v in random_field_params(int(rng.integers(2**31))).items():
+                nominal[self._cidx[k]] = v
+        p_true = self.mismatch(rng, nominal, self._mismatch_mask)
+        if self.preset is not None:
+            return USV_PRESETS[self.preset].state(), p_true, nominal
+        x, y = rng.uniform(-5.0, 5.0, size=2)
+        th = rng.uniform(-math.pi, math.pi)
+        aux = np.empty((1, len(self.model.output_names)))
+        self.k.aux(np.array([[x, y, th, 0.0, 0.0, 0.0]]), p_true[None, :], aux)
+        forward = rng.uniform(0.0, 1.5)
+        phi0 = rng.uniform(0.2, 1.0) * rng.choice([-1.0, 1.0])  # off the manifold by construction
+        # Velocity = current + forward speed along the heading + phi0 across it (mu = (sin, -cos)).
+        xd = aux[0, 0] + forward * math.cos(th) + phi0 * math.sin(th)
+        yd = aux[0, 1] + forward * math.sin(th) - phi0 * math.cos(th)
+        thd = rng.uniform(-0.5, 0.5)
+        return np.array([x, y, th, xd, yd, thd]), p_true, nominal
+
+    def observe(self) -> None:
+        # self.aux holds the *nominal* current map at the boat (what the controller is told).
+        _observe(*self._observe_args)
+
+    def impulse_mask(self) -> NDArray[np.float64]:
+        return self._kick_mask
+
+
+    def current_params(self, i: int) -> dict[str, float]:
+        """True current parameters of row ``i`` (times ``current_scale``) as a dict for CurrentField."""
+        return {k: float(self.params_true[i, j]) for k, j in self._cidx.items()}
+
+
+class USVStreamEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
+    r"""A boat in a sea current held to an affine velocity constraint (paper, Section IV-B).
+
+    ## Description
+
+    A USV with configuration ``q = (x, y, theta)``, mass ``m`` and inertia ``I`` moves in a
+    current ``C(x, y)``. One control force ``u`` acts along ``sin(theta) dx - cos(theta) dy +
+    d theta``; the current pushes the boat with ``W = m dV/dt``. The task is the virtual affine
+    constraint
+
+    $$\phi = \sin\theta\,\dot x - \cos\theta\,\dot y + \cos\theta\,C^2 - \sin\theta\,C^1 = 0,$$
+
+    i.e. no sideways velocity relative to the water. The law derived from Theorem 2 (the
+    paper's printed one is wrong, see NOTES.md) is
+    $u^* = -m\,[k\phi + \dot\theta(\dot x\cos\theta + \dot y\sin\theta)]$.
+
+    ## Action Space
+
+    ``Box(-1, 1, (1,), float32)``: ``u = force_bound * clip(a, -1, 1)`` (N), held over ``dt``.
+
+    ## Observation Space
+
+    ``Box(-obs_clip, obs_clip, (14,), float32)``; ``C`` is the **nominal** current map at the
+    boat (what a chart gives; it differs from the true current under ``mismatch``):
+
+    | index | observation                      | index | observation                    |
+    |-------|----------------------------------|-------|--------------------------------|
+    | 0     | ``cos(theta)``                   | 7     | ``x / domain``                 |
+    | 1     | ``sin(theta)``                   | 8     | ``y / domain``                 |
+    | 2     | ``xd / 2`` (m/s)                 | 9     | ``phi / 2`` (with nominal C)   |
+    | 3     | ``yd / 2``                       | 10    | ``dC1/dx`` (1/s)               |
+    | 4     | ``thetad / 2`` (rad/s)           | 11    | ``dC1/dy``                     |
+    | 5     | ``C1 / 2``                       | 12    | ``dC2/dx``                     |
+    | 6     | ``C2 / 2``                       | 13    | ``dC2/dy``                     |
+
+    The current's gradient gives a controller a local (affine) model of the current, which
+    a sampled-data law that predicts over the control period needs.
+
+    The law is computable from it: ``u* = -m [k 2 o9 + 2 o4 (2 o2 o0 + 2 o3 o1)]``.
+
+    ## Rewards
+
+    ``r = clip(-|phi| / phi_scale - action_cost * a^2, -reward_clip, 0)`` with the true
+    ``phi`` (m/s) at the new state. ``info["abs_phi"]`` is ``|phi|``.
+
+    ## Starting State
+
+    Position ``U(-5, 5)^2`` m, heading ``U(-pi, pi)``, velocity = current + ``U(0, 1.5)`` m/s
+    along the heading + ``±U(0.2, 1)`` m/s across it (so ``|phi(0)| >= 0.2``), turn rate
+    ``U(-0.5, 0.5)`` rad/s. With ``current="random"`` a new field is drawn every episode.
+    ``preset="paper-northeast"`` / ``"paper-anticyclone"`` reset to the paper's exact state.
+
+    ## Episode End
+
+    * Truncation: the time limit (``max_episode_steps=400`` with ``gym.make``, 20 s).
+    * Termination: non-finite state (``"non_finite_state"``) or the boat leaving the charted
+      square ``|x|, |y| <= domain`` (``"out_of_domain"``), in ``info["termination_reason"]``.
+
+    ## Arguments
+
+    | argument          | default   | meaning                                                     |
+    |-------------------|-----------|-------------------------------------------------------------|
+    | ``scenario``      | "nominal" | see Scenarios                                               |
+    | ``preset``        | None      | ``"paper-northeast"``, ``"paper-anticyclone"``              |
+    | ``current``       | "random"  | a name of ``vnhc_gym.systems.CURRENTS``                     |
+    | ``current_params``| None      | overrides of the current's parameters (fixes a random field)|
+    | ``mass``          | 10.0      | ``m`` (kg)                                                  |
+    | ``inertia``       | 1.5       | ``I`` (kg m^2)                                              |
+    | ``domain``        | 50.0      | half-width of the charted square (m)                        |
+    | ``dt``            | 0.05      | control period (s)                                          |
+    | ``substeps``      | 1         | RK4 steps per control period                                |
+    | ``force_bound``   | 50.0      | largest force (N)                                           |
+    | ``phi_scale``, ``action_cost``, ``reward_clip``, ``obs_clip`` | 1, 0, 100, 10 | as in FlockingAlign |
+    | ``param_mismatch``| 0.0       | true ``m``, ``I``, current scale ``x (1 + U(-d, d))``       |
+    | ``obs_noise``     | 0.0       | std of Gaussian observation noise                           |
+    | ``impulse_prob``  | 0.0       | per-step probability of a random velocity kick             |
+    | ``impulse_scale`` | 0.3       | std (m/s) of a kick on ``xd`` and ``yd``                    |
+    | ``render_mode``   | None      | ``"rgb_array"`` or ``"human"``                              |
+
+    ## Scenarios
+
+    | scenario      | what changes                                                               |
+    |---------------|----------------------------------------------------------------------------|
+    | nominal       | nothing                                                                    |
+    | saturated     | ``force_bound_scale=0.05``: 2.5 N, the law saturates at the start         |
+    | mismatch      | ``param_mismatch=0.3``: true ``m``, ``I`` and current strength differ      |
+    | noisy         | ``obs_noise=0.02``                                                         |
+    | coarse        | ``dt=0.1, substeps=4``                                                     |
+    | disturbance   | ``impulse_prob=0.05``: random 0.3 m/s velocity kicks                       |
+
+    ## Info
+
+    ``phi`` (float64 ``(1,)``), ``abs_phi``, ``state`` (``x, y, theta, xd, yd, thetad``),
+    ``force`` (N), ``params`` (true ``m, I, current_scale, c_*``), ``time``; plus
+    ``termination_reason`` when terminated.
+
+    ## Version History
+
+    * v0: initial release.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 20}
+
+    def __init__(self, scenario: str = "nominal", preset: str | None = None, current: str = "random",
+                 current_params: dict[str, float] | None = None, mass: float = 10.0, inertia: float = 1.5,
+                 domain: float = 50.0, render_mode: str | None = None, **kwargs: Any) -> None:
+        config, rest = resolve_config(TaskConfig, scenario, kwargs)
+        if rest:
+            raise ValueError(f"unknown keyword argument(s) {sorted(rest)}; valid: "
+                             f"{sorted(['scenario', 'preset', 'current', 'current_params', 'mass', 'inertia', 'domain', 'render_mode', *TaskConfig.__dataclass_fields__])}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        if current not in CURRENTS:
+            raise ValueError(f"unknown current {current!r}; valid names: {sorted(CURRENTS)}")
+        self.scenario = scenario
+        self.config = config
+        self.render_mode = render_mode
+        self.task = USVTask(config, 1, current=current, current_params=current_params, mass=mass, inertia=inertia,
+                            domain=domain, preset=preset)
+        self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+        lim = np.float32(config.obs_clip)
+        self.observation_space = spaces.Box(-lim, lim, (USV_OBS_DIM,), np.float32)
+        self._bound = self.task.force_bound
+        self._renderer: Any = None
+        self._rngs: list[np.random.Generator] = []
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+        super().reset(seed=seed)
+        self._rngs = [self.np_random]
+        self.task.reset_row(0, self.np_random)
+        if self.render_mode == "human":
+            self.render()
+        return self.task.obs32[0].copy(), self.task.info(0)
+
+    def step(self, action: Any) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        a = action if isinstance(action, np.ndarray) else np.asarray(action, dtype=np.float64)
+        if a.shape != self.action_space.shape:
+            raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
+        task = self.task
+        if a.dtype.kind != "f":
+            a = a.astype(np.float64)
+        if not check_action(a, task.force, 0, self._bound):
+            raise ValueError(f"action must be finite, got {action!r}")
+        task.action[0] = a
+        status = task.step(self._rngs)
+        if self.render_mode == "human":
+            self.render()
+        return task.obs32[0].copy(), float(task.reward[0]), bool(status[0]), False, task.info(0)
+
+    def render(self) -> NDArray[np.uint8] | None:
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'.")
+            return None
+        from vnhc_gym.envs.rendering import USVRenderer
+
+        if self._renderer is None:
+            self._renderer = USVRenderer(self.render_mode, self.metadata["render_fps"])
+        task = self.task
+        params = task.current_params(0)
+        scale = float(task.params_true[0, task.model.param_names.index("current_scale")])
+
+        def current(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+            return scale * task.field.value(x, y, params)
+
+        return self._renderer.draw(task.state[0], task.phi[0], current)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
