@@ -10,6 +10,7 @@ from collections.abc import Sequence
 # subcommand -> "module:function"; each module exposes add_arguments(parser) and run(args).
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "reproduce": ("vnhc_gym.paper", "Regenerate the paper's Section IV figures."),
+    "benchmark": ("vnhc_gym.benchmark", "Evaluate baselines (and shipped agents) on every env and scenario."),
 }
 
 
