@@ -11,7 +11,15 @@ from gymnasium import spaces
 from numba import njit
 from numpy.typing import NDArray
 
-from vnhc_gym.envs.task import STATUS_NONFINITE, STATUS_OK, ConstraintTask, TaskConfig, check_action, resolve_config
+from vnhc_gym.envs.task import (
+    STATUS_NONFINITE,
+    STATUS_OK,
+    ConstraintTask,
+    TaskConfig,
+    check_action,
+    reject_unknown,
+    resolve_config,
+)
 from vnhc_gym.mechanics import FLAG_NONFINITE
 from vnhc_gym.systems.flocking import FLOCKING_PRESETS, make_flocking
 
@@ -228,9 +236,7 @@ class FlockingAlignEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     def __init__(self, scenario: str = "nominal", preset: str | None = None, n_agents: int = 4,
                  masses: Any = 2.0, g: float = 10.0, render_mode: str | None = None, **kwargs: Any) -> None:
         config, rest = resolve_config(FlockingConfig, scenario, kwargs)
-        if rest:
-            raise ValueError(f"unknown keyword argument(s) {sorted(rest)}; valid: "
-                             f"{sorted(['scenario', 'preset', 'n_agents', 'masses', 'g', 'render_mode', *TaskConfig.__dataclass_fields__])}")
+        reject_unknown(rest, ("scenario", "preset", "n_agents", "masses", "g", "render_mode"))
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.scenario = scenario

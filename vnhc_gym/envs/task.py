@@ -18,9 +18,9 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from vnhc_gym.mechanics import FEEDBACK_MODES, FLAG_NONFINITE, ConstrainedSystem
+from vnhc_gym.mechanics import FEEDBACK_MODES, ConstrainedSystem
 
-__all__ = ["TaskConfig", "ConstraintTask", "check_action", "resolve_config", "SCENARIOS"]
+__all__ = ["TaskConfig", "ConstraintTask", "check_action", "reject_unknown", "resolve_config", "SCENARIOS"]
 
 Array = NDArray[np.float64]
 
@@ -113,7 +113,8 @@ class TaskConfig:
         positive("obs_clip", self.obs_clip)
 
 
-def resolve_config(cls: type[TaskConfig], scenario: str, kwargs: Mapping[str, Any]) -> tuple[TaskConfig, dict[str, Any]]:
+def resolve_config(cls: type[TaskConfig], scenario: str,
+                   kwargs: Mapping[str, Any]) -> tuple[TaskConfig, dict[str, Any]]:
     """Build a config from a scenario's overrides, then explicit keyword arguments.
 
     Returns the config and the keyword arguments that are not config fields (env-specific).
@@ -126,6 +127,13 @@ def resolve_config(cls: type[TaskConfig], scenario: str, kwargs: Mapping[str, An
     config = replace(cls(), **{**SCENARIOS[scenario], **own})
     config.validate()
     return config, rest
+
+
+def reject_unknown(rest: Mapping[str, Any], env_names: tuple[str, ...]) -> None:
+    """Raise ``ValueError`` listing the valid names if ``rest`` holds unknown keyword arguments."""
+    if rest:
+        valid = sorted([*env_names, *(f.name for f in fields(TaskConfig))])
+        raise ValueError(f"unknown keyword argument(s) {sorted(rest)}; valid: {valid}")
 
 
 @njit(cache=True)

@@ -11,7 +11,16 @@ from gymnasium import spaces
 from numba import njit
 from numpy.typing import NDArray
 
-from vnhc_gym.envs.task import STATUS_INVALID, STATUS_NONFINITE, STATUS_OK, ConstraintTask, TaskConfig, check_action, resolve_config
+from vnhc_gym.envs.task import (
+    STATUS_INVALID,
+    STATUS_NONFINITE,
+    STATUS_OK,
+    ConstraintTask,
+    TaskConfig,
+    check_action,
+    reject_unknown,
+    resolve_config,
+)
 from vnhc_gym.mechanics import FLAG_NONFINITE
 from vnhc_gym.systems.currents import CURRENTS, get_current, random_field_params
 from vnhc_gym.systems.usv import USV_PRESETS, make_usv
@@ -234,9 +243,8 @@ class USVStreamEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
                  current_params: dict[str, float] | None = None, mass: float = 10.0, inertia: float = 1.5,
                  domain: float = 50.0, render_mode: str | None = None, **kwargs: Any) -> None:
         config, rest = resolve_config(TaskConfig, scenario, kwargs)
-        if rest:
-            raise ValueError(f"unknown keyword argument(s) {sorted(rest)}; valid: "
-                             f"{sorted(['scenario', 'preset', 'current', 'current_params', 'mass', 'inertia', 'domain', 'render_mode', *TaskConfig.__dataclass_fields__])}")
+        reject_unknown(rest, ("scenario", "preset", "current", "current_params", "mass", "inertia", "domain",
+                              "render_mode"))
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         if current not in CURRENTS:

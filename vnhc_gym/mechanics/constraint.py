@@ -154,7 +154,8 @@ def derive_law(system: MechanicalSystem, constraint: Constraint) -> SymbolicLaw:
         phi = constraint.phi
         _check_symbols(phi, set(system.q) | set(system.qd) | params, "phi")
     else:
-        raise TypeError(f"constraint must be a VelocityConstraint or HolonomicConstraint, got {type(constraint).__name__}")
+        raise TypeError("constraint must be a VelocityConstraint or HolonomicConstraint, "
+                        f"got {type(constraint).__name__}")
     if phi.rows != system.m:
         raise ValueError(f"constraint has {phi.rows} components but the system has {system.m} controls; "
                          "Theorem 2 needs a square C")

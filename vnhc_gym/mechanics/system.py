@@ -96,7 +96,8 @@ class MechanicalSystem:
                             ("external_force", ext)):
             unknown = sp.sympify(expr).free_symbols - allowed
             if unknown:
-                raise ValueError(f"{label} uses symbols that are neither coordinates nor params: {sorted(map(str, unknown))}")
+                raise ValueError(f"{label} uses symbols that are neither coordinates nor params: "
+                                 f"{sorted(map(str, unknown))}")
 
     @property
     def n(self) -> int:

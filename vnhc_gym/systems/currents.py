@@ -96,6 +96,12 @@ def _random_build(x: sp.Symbol, y: sp.Symbol, p: dict[str, sp.Symbol]) -> tuple[
     return sp.diff(psi, y), -sp.diff(psi, x)
 
 
+def _vortex(x: sp.Symbol, y: sp.Symbol, p: dict[str, sp.Symbol]) -> tuple[sp.Expr, sp.Expr]:
+    dx, dy = x - p["x0"], y - p["y0"]
+    strength = p["gamma"] / (2 * sp.pi) / (dx**2 + dy**2 + p["rc"] ** 2)
+    return -strength * dy, strength * dx
+
+
 def random_field_params(seed: int, n_modes: int = RANDOM_MODES, wavelength: float = 8.0,
                         speed: float = 1.0) -> dict[str, float]:
     """Parameters of the ``random`` field for ``seed``: a divergence-free field of RMS speed ~``speed``.
@@ -131,8 +137,7 @@ CURRENTS: dict[str, CurrentField] = {
         "general affine field c + J (x, y); a local model of any field (used by the sampled-data baseline)"),
     "vortex": CurrentField(
         "vortex", {"gamma": float(4 * np.pi), "x0": 0.0, "y0": 0.0, "rc": 1.0},
-        lambda x, y, p: (-p["gamma"] / (2 * sp.pi) * (y - p["y0"]) / ((x - p["x0"]) ** 2 + (y - p["y0"]) ** 2 + p["rc"] ** 2),
-                         p["gamma"] / (2 * sp.pi) * (x - p["x0"]) / ((x - p["x0"]) ** 2 + (y - p["y0"]) ** 2 + p["rc"] ** 2)),
+        lambda x, y, p: _vortex(x, y, p),
         "point vortex of circulation gamma with a smooth core rc (peak speed gamma / (4 pi rc))"),
     "shear": CurrentField("shear", {"u0": 0.5, "s": 0.2}, lambda x, y, p: (p["u0"] + p["s"] * y, sp.Integer(0)),
                           "plane shear flow (u0 + s y, 0)"),

@@ -22,7 +22,7 @@ singular where the leader moves along the diagonal ``xd_N = zd_N``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import sympy as sp
@@ -60,7 +60,7 @@ def flocking_system(n_agents: int = 4) -> tuple[MechanicalSystem, VelocityConstr
     return system, VelocityConstraint(phi)
 
 
-@lru_cache(maxsize=None)
+@cache
 def make_flocking(n_agents: int = 4) -> ConstrainedSystem:
     """Compiled flocking system (cached per ``n_agents``).
 

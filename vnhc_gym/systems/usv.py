@@ -25,7 +25,7 @@ is never singular.  The law derived from Theorem 2 is
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import sympy as sp
@@ -67,7 +67,7 @@ def usv_system(current: str = "northeast") -> tuple[MechanicalSystem, VelocityCo
     return system, VelocityConstraint(phi), outputs
 
 
-@lru_cache(maxsize=None)
+@cache
 def make_usv(current: str = "northeast") -> ConstrainedSystem:
     """Compiled USV for a named current (cached per name).
 
