@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -23,6 +23,7 @@ from vnhc_gym.envs.task import (
 from vnhc_gym.mechanics import FLAG_NONFINITE
 from vnhc_gym.systems.flocking import FLOCKING_PRESETS, make_flocking
 
+Array = NDArray[np.float64]
 __all__ = ["FlockingAlignEnv", "FlockingTask", "FlockingConfig", "LOG_SPEED_SCALE", "flocking_obs_dim"]
 
 #: The leader's speed enters the observation as ``log(|v_N|) / LOG_SPEED_SCALE``.
@@ -96,7 +97,7 @@ class FlockingTask(ConstraintTask):
         self._kick_mask[self.n_agents: 2 * self.n_agents - 1] = 1.0  # follower zd
         self._observe_args = (self.state, self.n_agents, config.obs_clip, self.obs, self.flags, self.status)
 
-    def sample_episode(self, rng: np.random.Generator) -> tuple[NDArray[np.float64], ...]:
+    def sample_episode(self, rng: np.random.Generator) -> tuple[Array, Array, Array]:
         n = self.n_agents
         if self.preset is not None:
             state = FLOCKING_PRESETS[self.preset].state()
@@ -231,7 +232,7 @@ class FlockingAlignEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     * v0: initial release.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 20}
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 20}  # noqa: RUF012 (Gymnasium API)
 
     def __init__(self, scenario: str = "nominal", preset: str | None = None, n_agents: int = 4,
                  masses: Any = 2.0, g: float = 10.0, render_mode: str | None = None, **kwargs: Any) -> None:

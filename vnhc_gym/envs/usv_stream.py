@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -25,6 +25,7 @@ from vnhc_gym.mechanics import FLAG_NONFINITE
 from vnhc_gym.systems.currents import CURRENTS, get_current, random_field_params
 from vnhc_gym.systems.usv import USV_PRESETS, make_usv
 
+Array = NDArray[np.float64]
 __all__ = ["USVStreamEnv", "USVTask", "USV_OBS_DIM", "VEL_SCALE", "RATE_SCALE"]
 
 USV_OBS_DIM = 14
@@ -103,7 +104,7 @@ class USVTask(ConstraintTask):
         self._kick_mask = np.array([1.0, 1.0, 0.0])
         self._observe_args = (self.state, self.aux, self.domain, config.obs_clip, self.obs, self.flags, self.status)
 
-    def sample_episode(self, rng: np.random.Generator) -> tuple[NDArray[np.float64], ...]:
+    def sample_episode(self, rng: np.random.Generator) -> tuple[Array, Array, Array]:
         nominal = self.nominal.copy()
         if not self.fixed_field:
             for k, v in random_field_params(int(rng.integers(2**31))).items():
@@ -237,7 +238,7 @@ class USVStreamEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     * v0: initial release.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 20}
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 20}  # noqa: RUF012 (Gymnasium API)
 
     def __init__(self, scenario: str = "nominal", preset: str | None = None, current: str = "random",
                  current_params: dict[str, float] | None = None, mass: float = 10.0, inertia: float = 1.5,

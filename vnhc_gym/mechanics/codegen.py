@@ -17,6 +17,7 @@ import os
 import sys
 import tempfile
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 
@@ -141,7 +142,7 @@ def _key(parts: list[str]) -> str:
     return digest[:20]
 
 
-def load_module(key_parts: list[str], make_source: callable[[], str]) -> ModuleType:  # type: ignore[valid-type]
+def load_module(key_parts: list[str], make_source: Callable[[], str]) -> ModuleType:
     """Import the generated module for ``key_parts``, generating it first if not cached.
 
     ``make_source`` is only called on a cache miss, so a warm start skips the symbolic work.

@@ -25,6 +25,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 import sympy as sp
@@ -62,7 +63,7 @@ class CurrentField:
         return self.build(x, y, self.symbols())
 
     @cached_property
-    def _numeric(self) -> tuple[Callable[..., object], Callable[..., object]]:
+    def _numeric(self) -> tuple[Callable[..., Any], Callable[..., Any]]:
         x, y = sp.symbols("x y", real=True)
         syms = list(self.symbols().values())
         c1, c2 = self.expressions(x, y)
@@ -81,13 +82,13 @@ class CurrentField:
     def value(self, x: ArrayLike, y: ArrayLike, params: dict[str, float] | None = None) -> NDArray[np.float64]:
         """``C(x, y)``, shape ``(..., 2)``."""
         xa, ya = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
-        c1, c2 = self._numeric[0](xa, ya, *self._args(params))  # type: ignore[misc]
+        c1, c2 = self._numeric[0](xa, ya, *self._args(params))
         return np.stack(np.broadcast_arrays(c1, c2, xa)[:2], axis=-1).astype(np.float64)
 
     def jacobian(self, x: ArrayLike, y: ArrayLike, params: dict[str, float] | None = None) -> NDArray[np.float64]:
         """``dC/d(x, y)``, shape ``(..., 2, 2)`` with ``[..., i, j] = d C_i / d x_j``."""
         xa, ya = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
-        parts = np.broadcast_arrays(*self._numeric[1](xa, ya, *self._args(params)), xa)[:4]  # type: ignore[misc]
+        parts = np.broadcast_arrays(*self._numeric[1](xa, ya, *self._args(params)), xa)[:4]
         return np.stack(parts, axis=-1).reshape(*xa.shape, 2, 2).astype(np.float64)
 
 
