@@ -22,4 +22,13 @@ for _id, (_entry, _vector_entry) in _ENTRY.items():
     if _id not in registry:
         register(id=_id, entry_point=_entry, vector_entry_point=_vector_entry, max_episode_steps=MAX_EPISODE_STEPS)
 
+
+def __getattr__(name: str):  # lazy: importing vnhc_gym must not import SB3 / torch
+    if name == "make_sb3_vec_env":
+        from vnhc_gym.sb3 import make_sb3_vec_env
+
+        return make_sb3_vec_env
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = ["ENV_IDS", "MAX_EPISODE_STEPS", "__version__"]

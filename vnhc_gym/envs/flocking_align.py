@@ -16,6 +16,7 @@ from vnhc_gym.envs.task import (
     STATUS_OK,
     ConstraintTask,
     TaskConfig,
+    _is_real,
     check_action,
     reject_unknown,
     resolve_config,
@@ -25,6 +26,8 @@ from vnhc_gym.systems.flocking import FLOCKING_PRESETS, make_flocking
 
 Array = NDArray[np.float64]
 __all__ = ["FlockingAlignEnv", "FlockingTask", "FlockingConfig", "LOG_SPEED_SCALE", "flocking_obs_dim"]
+
+_SIGNS = np.array([-1.0, 1.0])
 
 #: The leader's speed enters the observation as ``log(|v_N|) / LOG_SPEED_SCALE``.
 LOG_SPEED_SCALE = 5.0
@@ -80,7 +83,7 @@ class FlockingTask(ConstraintTask):
             np.asarray(masses, dtype=np.float64)
         if m_arr.shape != (n_agents,) or not np.all(np.isfinite(m_arr)) or np.any(m_arr <= 0):
             raise ValueError(f"masses must be a positive number or {n_agents} positive numbers, got {masses!r}")
-        if not (np.isfinite(g) and g > 0):
+        if not (_is_real(g) and np.isfinite(g) and g > 0):
             raise ValueError(f"g must be a finite number > 0, got {g!r}")
         self.n_agents = int(n_agents)
         self.preset = preset
@@ -104,12 +107,13 @@ class FlockingTask(ConstraintTask):
         else:
             # Leader: xd_N - zd_N in [1, 3] keeps C = diag((xd_N - zd_N)/m) away from singular for
             # the whole episode (zd_N only decreases in free fall).
-            lx = rng.uniform(0.5, 2.0) * rng.choice([-1.0, 1.0])
+            # (-1.0, 1.0)[rng.integers(2)] draws exactly what rng.choice([-1.0, 1.0]) does, 10x cheaper.
+            lx = rng.uniform(0.5, 2.0) * (-1.0, 1.0)[rng.integers(2)]
             lz = lx - rng.uniform(1.0, 3.0)
             speed = math.hypot(lx, lz)
             angle = math.atan2(lz, lx)
             # Followers: off the manifold by construction (angle offset 0.3..1.2 rad either way).
-            offs = rng.uniform(0.3, 1.2, size=n - 1) * rng.choice([-1.0, 1.0], size=n - 1)
+            offs = rng.uniform(0.3, 1.2, size=n - 1) * _SIGNS[rng.integers(2, size=n - 1)]
             mags = speed * rng.uniform(0.5, 2.0, size=n - 1)
             vel = np.empty((n, 2))
             vel[:-1, 0] = mags * np.cos(angle + offs)
@@ -213,7 +217,7 @@ class FlockingAlignEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     | scenario      | what changes                                                              |
     |---------------|---------------------------------------------------------------------------|
     | nominal       | nothing                                                                   |
-    | saturated     | ``force_bound_scale=0.05``: 5 N, the law saturates at the start          |
+    | saturated     | ``force_bound_scale=0.05``: 5 N, the law usually saturates at the start  |
     | mismatch      | ``param_mismatch=0.3``: true masses differ from the nominal ones          |
     | noisy         | ``obs_noise=0.02``                                                        |
     | coarse        | ``dt=0.1, substeps=4``                                                    |
@@ -267,11 +271,13 @@ class FlockingAlignEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         if a.shape != self.action_space.shape:
             raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
         task = self.task
-        if a.dtype.kind != "f":
+        if a.dtype != np.float64 and a.dtype != np.float32:
+            if a.dtype.kind not in "fiub":
+                raise ValueError(f"action must be real numbers, got dtype {a.dtype}")
             a = a.astype(np.float64)
         if not check_action(a, task.force, 0, self._bound):
             raise ValueError(f"action must be finite, got {action!r}")
-        task.action[0] = a
+        np.clip(a, -1.0, 1.0, out=task.action[0])  # the action cost is charged on the applied action
         status = task.step(self._rngs)
         if self.render_mode == "human":
             self.render()
@@ -286,6 +292,11 @@ class FlockingAlignEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         if self._renderer is None:
             self._renderer = FlockingRenderer(self.n_agents, self.render_mode, self.metadata["render_fps"])
         return self._renderer.draw(self.task.state[0], self.task.phi[0])
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_renderer"] = None  # a pygame window does not travel
+        return state
 
     def close(self) -> None:
         if self._renderer is not None:

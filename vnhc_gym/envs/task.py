@@ -10,8 +10,11 @@ duplication).  Randomness comes from one ``numpy.random.Generator`` per row (the
 
 from __future__ import annotations
 
+import numbers
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
+from time import perf_counter
 from typing import Any, ClassVar
 
 import numpy as np
@@ -33,6 +36,11 @@ SCENARIOS: dict[str, dict[str, Any]] = {
     "coarse": {"dt": 0.1, "substeps": 4},
     "disturbance": {"impulse_prob": 0.05},
 }
+
+
+def _is_real(value: object) -> bool:
+    """A real number (numpy scalars included), not a bool."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
 
 
 @dataclass(frozen=True)
@@ -86,11 +94,11 @@ class TaskConfig:
         def positive(name: str, value: float | None, allow_none: bool = False) -> None:
             if value is None and allow_none:
                 return
-            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+            if not (_is_real(value) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
 
         def nonneg(name: str, value: float) -> None:
-            if not (isinstance(value, int | float) and np.isfinite(value) and value >= 0):
+            if not (_is_real(value) and np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
 
         positive("dt", self.dt)
@@ -151,8 +159,32 @@ STATUS_OK = 0
 STATUS_NONFINITE = 1  #: the integrated state was not finite (row kept its last finite state)
 STATUS_INVALID = 2  #: the system left its physically valid region (env-specific)
 REASONS = {STATUS_NONFINITE: "non_finite_state", STATUS_INVALID: "out_of_domain"}
-#: Batches at least this large step on numba's thread pool.
+#: Batches at least this large step on numba's thread pool (when it is faster, see
+#: ConstraintTask._advance_timed).
 PARALLEL_MIN_ROWS = 256
+#: First and largest interval (steps) between timing probes of the kernel not in use.
+_PROBE_MIN, _PROBE_MAX = 16, 1024
+
+
+def _start_thread_pool() -> None:
+    """Start numba's thread pool with OpenMP's *passive* barrier wait (unless the user set
+    ``OMP_WAIT_POLICY``).  libgomp's default spin-waiting stalls the batched kernel for whole
+    scheduler slices (10-20 ms a step instead of < 1 ms) as soon as the machine has more busy
+    threads than cores (other processes, torch's own pool).  The variable is only set while the
+    pool starts (libgomp reads it then), so nothing else in the process sees it."""
+    try:
+        from numba.np.ufunc import parallel
+    except ImportError:  # pragma: no cover
+        return
+    if getattr(parallel, "_is_initialized", True) or "OMP_WAIT_POLICY" in os.environ:
+        return
+    os.environ["OMP_WAIT_POLICY"] = "passive"
+    try:
+        parallel._launch_threads()
+    except Exception:  # pragma: no cover - the kernel launches the pool itself then
+        pass
+    finally:
+        del os.environ["OMP_WAIT_POLICY"]
 
 
 @njit(cache=True)
@@ -185,6 +217,8 @@ def _finish(obs, noise, cursor, use_cursor, add_noise, clip, phi, action, status
         for b in range(m):
             acc += abs(phi[r, b])
         abs_phi[r] = acc / m
+        if not abs(acc) < np.inf:  # phi overflowed (inf - inf) while the state stayed finite
+            status[r] = STATUS_NONFINITE
         cost = 0.0
         for b in range(action.shape[1]):
             cost += action[r, b] * action[r, b]
@@ -195,6 +229,21 @@ def _finish(obs, noise, cursor, use_cursor, add_noise, clip, phi, action, status
         for j in range(obs.shape[1]):
             obs32[r, j] = obs[r, j]
     return exhausted
+
+
+@njit(cache=True)
+def _snapshot(status, state, next_state, phi, abs_phi, force, params, obs32):
+    """Fresh copies for :meth:`ConstraintTask.batch_info` (``state`` from ``next_state`` where
+    non-finite) and the number of rows with a non-OK status."""
+    state_c = np.empty_like(state)
+    n_bad = 0
+    for r in range(status.shape[0]):
+        src = next_state if status[r] == STATUS_NONFINITE else state
+        for j in range(state.shape[1]):
+            state_c[r, j] = src[r, j]
+        if status[r] != STATUS_OK:
+            n_bad += 1
+    return obs32.copy(), phi.copy(), abs_phi.copy(), state_c, force.copy(), params.copy(), n_bad
 
 
 class ConstraintTask:
@@ -214,9 +263,24 @@ class ConstraintTask:
         self.config = config
         self.n = n
         self.k = model.kernels
+        if n >= PARALLEL_MIN_ROWS:
+            _start_thread_pool()
         self._advance = self.k.advance_parallel if n >= PARALLEL_MIN_ROWS else self.k.advance
         self._extra = (2,) if n >= PARALLEL_MIN_ROWS else ()
-        self.force_bound = np.ascontiguousarray(force_bound, dtype=np.float64) * config.force_bound_scale
+        # Big batches time the threaded and the serial kernel now and then and run the faster one
+        # (they compute the same numbers): on a machine with more busy threads than cores the
+        # threaded one can be many times slower.  See _advance_timed.
+        self._timed = n >= PARALLEL_MIN_ROWS
+        self._kernel_s = [0.0, 0.0]  # running mean seconds of [serial, threaded]
+        self._threaded = True
+        self._calls = 0
+        self._probe_every = _PROBE_MIN
+        self._next_probe = _PROBE_MIN
+        with np.errstate(over="ignore"):
+            self.force_bound = np.ascontiguousarray(force_bound, dtype=np.float64) * config.force_bound_scale
+        if not np.all(np.isfinite(self.force_bound)):
+            raise ValueError("force_bound * force_bound_scale must be finite, got "
+                             f"{config.force_bound} * {config.force_bound_scale}")
         m, dim, n_p = model.m, 2 * model.n, len(model.param_names)
         self.state = np.zeros((n, dim))
         self.next_state = np.zeros((n, dim))
@@ -260,6 +324,18 @@ class ConstraintTask:
         self.feedback = "open"
         self._kick_args = None if self._kick_u is None else (self.dv, self._kick_u, self._kick_v, self._cursor,
                                                                cfg.impulse_prob)
+
+    def __getstate__(self) -> dict[str, Any]:
+        # Compiled kernels are module functions of a generated module: re-bound on unpickle.
+        state = self.__dict__.copy()
+        state["k"] = None
+        state["_advance"] = None
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self.k = self.model.kernels
+        self._advance = self.k.advance_parallel if self.n >= PARALLEL_MIN_ROWS else self.k.advance
 
     def set_feedback(self, feedback: str = "open", gains: Any = 1.0) -> None:
         """Run the geometric law inside the integrator, on top of the held force.
@@ -332,6 +408,56 @@ class ConstraintTask:
             self.obs[i] = np.clip(self.obs[i] + self._noise[i, 0], -self.config.obs_clip, self.config.obs_clip)
         self.obs32[i] = self.obs[i]
 
+    def reset_rows(self, rows: NDArray[np.intp], rngs: list[np.random.Generator]) -> None:
+        """:meth:`reset_row` for several rows at once (row ``i`` draws from ``rngs[i]``).
+
+        Every row gets exactly what ``reset_row(i, rngs[i])`` would give it (same draws in the
+        same order, same arithmetic); only the per-row Python work is left in the loop, and the
+        kernels and the observation run once for all of ``rows``.  Other rows keep their float32
+        observations (``obs32``) and statuses.
+        """
+        rows = np.asarray(rows, dtype=np.intp)
+        if rows.size == 0:
+            return
+        if rows.size == 1:
+            self.reset_row(int(rows[0]), rngs[int(rows[0])])
+            return
+        refill = self._noisy or self._kicks
+        states, trues, noms = [], [], []
+        for i in rows.tolist():
+            rng = rngs[i]
+            state, p_true, p_nom = self.sample_episode(rng)
+            states.append(state)
+            trues.append(p_true)
+            noms.append(p_nom)
+            if refill:
+                self._refill(i, rng)
+        state = np.array(states, dtype=np.float64)
+        p_true = np.array(trues, dtype=np.float64)
+        p_nom = np.array(noms, dtype=np.float64)
+        self.state[rows] = state
+        self.params_true[rows] = p_true
+        self.params_nominal[rows] = p_nom
+        self.steps[rows] = 0
+        self.force[rows] = 0.0
+        self.force_applied[rows] = 0.0
+        self.action[rows] = 0.0
+        self.flags[rows] = 0
+        phi = np.empty((rows.size, self.phi.shape[1]))
+        aux = np.empty((rows.size, self.aux.shape[1]))
+        self.k.phi(state, p_true, phi)
+        self.k.aux(state, p_nom, aux)
+        self.phi[rows] = phi
+        self.aux[rows] = aux
+        self.abs_phi[rows] = np.abs(phi).mean(axis=1)
+        self.observe()
+        self.status[rows] = STATUS_OK
+        obs = self.obs[rows]
+        if self._noisy:
+            obs = np.clip(obs + self._noise[rows, 0], -self.config.obs_clip, self.config.obs_clip)
+            self.obs[rows] = obs
+        self.obs32[rows] = obs
+
     def step(self, rngs: list[np.random.Generator]) -> NDArray[np.int64]:
         """Advance every row one control period with the forces in ``self.force``.
 
@@ -341,7 +467,10 @@ class ConstraintTask:
         """
         if self._kick_args is not None:
             _fill_kicks(*self._kick_args)
-        self._advance(*self._advance_args)
+        if self._timed:
+            self._advance_timed()
+        else:
+            self._advance(*self._advance_args)
         self.observe()
         exhausted = _finish(*self._finish_args)
         if exhausted:
@@ -353,6 +482,45 @@ class ConstraintTask:
                     self.obs32[i] = self.obs[i]
         return self.status
 
+    def _advance_timed(self) -> None:
+        """Run the faster of the threaded and the serial kernel (big batches only).
+
+        The current choice's running time is tracked; every ``_probe_every`` calls the other
+        kernel runs once instead, and becomes the choice if it was faster.  A losing probe doubles
+        the interval (up to ``_PROBE_MAX``), a winning one resets it, so a wrong choice costs
+        little and is undone soon after the machine's load changes.
+        """
+        self._calls += 1
+        probe = self._calls >= self._next_probe
+        threaded = self._threaded != probe
+        t0 = perf_counter()
+        if threaded:
+            self.k.advance_parallel(*self._advance_args)
+        else:
+            self.k.advance(*self._advance_args[:-1])
+        elapsed = perf_counter() - t0
+        mean = self._kernel_s
+        if not probe:
+            mean[threaded] = elapsed if mean[threaded] == 0.0 else 0.75 * mean[threaded] + 0.25 * elapsed
+            return
+        if elapsed < mean[not threaded]:
+            self._threaded = threaded
+            mean[threaded] = elapsed
+            self._probe_every = _PROBE_MIN
+        else:
+            self._probe_every = min(2 * self._probe_every, _PROBE_MAX)
+        self._next_probe = self._calls + self._probe_every
+
+    def batch_info(self) -> tuple[NDArray[np.float32], dict[str, Any], int]:
+        """All rows at once: a copy of ``obs32``, the arrays of :meth:`info` stacked over rows
+        (same keys, dtypes and values; keep the two in sync) without ``termination_reason``,
+        and the number of rows with a non-OK status (those that carry a termination reason)."""
+        obs, phi, abs_phi, state, force, params, n_bad = _snapshot(
+            self.status, self.state, self.next_state, self.phi, self.abs_phi, self.force_applied, self.params_true,
+            self.obs32)
+        return obs, {"phi": phi, "abs_phi": abs_phi, "state": state, "force": force, "params": params,
+                     "time": self.steps * self.config.dt}, n_bad
+
     def info(self, i: int) -> dict[str, Any]:
         """The documented per-step ``info`` of row ``i`` (fresh float64 copies)."""
         info = {
@@ -360,6 +528,7 @@ class ConstraintTask:
             "abs_phi": float(self.abs_phi[i]),
             "state": self.state[i].copy(),
             "force": self.force_applied[i].copy(),
+            "params": self.params_true[i].copy(),
             "time": int(self.steps[i]) * self.config.dt,
         }
         status = int(self.status[i])

@@ -89,6 +89,7 @@ class ConstrainedSystem:
                sp.srepr(system.control_forces), sp.srepr(system.potential), sp.srepr(system.external_force),
                sp.srepr(tuple(system.params)), str(holonomic), sp.srepr(expr),
                sp.srepr(tuple(self._outputs.items()))]
+        self._key = key
         self.kernels = load_module(key, lambda: generate_source(self.symbolic, self._outputs))
         self.n = system.n
         self.m = system.m
@@ -96,6 +97,17 @@ class ConstrainedSystem:
         self.holonomic = holonomic
         self.param_names = tuple(str(p) for p in system.params)
         self.default_params = np.asarray(system.default_param_values(), dtype=np.float64)
+
+    def __getstate__(self) -> dict[str, object]:
+        # The compiled module is not picklable; it is re-imported from the on-disk cache.
+        state = self.__dict__.copy()
+        state["kernels"] = None
+        state["_law"] = None
+        return state
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        self.__dict__.update(state)
+        self.kernels = load_module(self._key, lambda: generate_source(self.symbolic, self._outputs))
 
     # ------------------------------------------------------------------ symbolic side
     @property
