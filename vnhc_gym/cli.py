@@ -7,23 +7,30 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-# subcommand -> "module:function"; each module exposes add_arguments(parser) and run(args).
+# subcommand -> (module, help); each module exposes add_arguments(parser) and run(args).
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "reproduce": ("vnhc_gym.paper", "Regenerate the paper's Section IV figures."),
     "benchmark": ("vnhc_gym.benchmark", "Evaluate baselines (and shipped agents) on every env and scenario."),
+    "train": ("vnhc_gym.train", "Train PPO / residual PPO / SAC agents."),
 }
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``vnhc-gym`` console script."""
+    """Entry point of the ``vnhc-gym`` console script.
+
+    Only the chosen subcommand's module is imported (they pull in matplotlib, SB3, torch...).
+    """
+    args_in = list(sys.argv[1:] if argv is None else argv)
+    chosen = next((a for a in args_in if not a.startswith("-")), None)
     parser = argparse.ArgumentParser(prog="vnhc-gym", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     for name, (module_name, help_text) in SUBCOMMANDS.items():
-        module = importlib.import_module(module_name)
         p = sub.add_parser(name, help=help_text, description=help_text)
-        module.add_arguments(p)
-        p.set_defaults(_run=module.run)
-    args = parser.parse_args(argv)
+        if name == chosen:
+            module = importlib.import_module(module_name)
+            module.add_arguments(p)
+            p.set_defaults(_run=module.run)
+    args = parser.parse_args(args_in)
     return int(args._run(args) or 0)
 
 
