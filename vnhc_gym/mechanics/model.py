@@ -63,8 +63,10 @@ class ConstrainedSystem:
         Extra functions of the state and parameters to compile (for example the sea current
         at the boat), evaluated by :meth:`outputs`.
     singular_tol : float, default 1e-10
-        ``C`` counts as singular when a pivot of its LU factorisation is at most
-        ``singular_tol * max(1, max|C|)``.
+        ``C`` counts as singular when a pivot of its LU factorisation (partial pivoting) is at
+        most ``singular_tol * max(1, max|C|)``; when ``C`` is diagonal by construction (the
+        generated code checks this symbolically) each diagonal entry is tested on its own,
+        ``|C_bb| <= singular_tol * max(1, |C_bb|)``.
 
     Notes
     -----
