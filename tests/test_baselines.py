@@ -126,7 +126,7 @@ def test_batched_predict_equals_row_by_row(env_id: str) -> None:
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.floats(-3, 3, width=32), min_size=12, max_size=12), st.integers(1, 5))
 def test_plain_batch_property(values: list[float], n: int) -> None:
-    ctrl = GeometricController(system="flocking", nominal=[2, 2, 2, 2, 10.0], force_bound=100.0, dt=0.05)
+    ctrl = GeometricController(system="flocking", nominal=[2, 2, 2, 2, 10.0], force_bound=250.0, dt=0.05)
     o = np.asarray(values, dtype=np.float32)
     batch = np.tile(o, (n, 1))
     a_batch = ctrl.predict(batch)[0]
@@ -136,7 +136,7 @@ def test_plain_batch_property(values: list[float], n: int) -> None:
 
 
 def test_singular_decoupling_gives_finite_action_and_is_reported() -> None:
-    ctrl = GeometricController(system="flocking", nominal=[2, 2, 2, 2, 10.0], force_bound=100.0, dt=0.05)
+    ctrl = GeometricController(system="flocking", nominal=[2, 2, 2, 2, 10.0], force_bound=250.0, dt=0.05)
     o = np.zeros(12, dtype=np.float32)
     o[6] = o[7] = np.float32(np.sqrt(0.5))  # e_x == e_z: leader on the diagonal, C singular
     o[:6] = 0.3
@@ -148,7 +148,7 @@ def test_singular_decoupling_gives_finite_action_and_is_reported() -> None:
     np.testing.assert_array_equal(a[0], 0.0)
     assert ctrl.last_singular.tolist() == [True, False]
     assert ctrl.n_singular == 1
-    sampled = GeometricController(system="flocking", nominal=[2, 2, 2, 2, 10.0], force_bound=100.0, dt=0.05,
+    sampled = GeometricController(system="flocking", nominal=[2, 2, 2, 2, 10.0], force_bound=250.0, dt=0.05,
                                   variant="sampled")
     a2, _ = sampled.predict(o)
     assert np.all(np.isfinite(a2)) and sampled.last_singular.tolist() == [True]
@@ -166,7 +166,7 @@ def test_wrong_observation_shape_raises_value_error_naming_shape() -> None:
 def test_explicit_construction_equals_env_construction() -> None:
     obs_list, _, env = _rollout_obs(FLOCK, 10, scenario="saturated")
     a = GeometricController(env)
-    b = GeometricController(system="flocking", nominal=env.unwrapped.task.nominal, force_bound=5.0, dt=0.05)
+    b = GeometricController(system="flocking", nominal=env.unwrapped.task.nominal, force_bound=12.5, dt=0.05)
     np.testing.assert_array_equal(a.predict(np.stack(obs_list))[0], b.predict(np.stack(obs_list))[0])
     with pytest.raises(TypeError):
         GeometricController()

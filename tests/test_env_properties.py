@@ -28,7 +28,7 @@ FLOCK, USV = "vnhc_gym/FlockingAlign-v0", "vnhc_gym/USVStream-v0"
 CLASSES = {FLOCK: FlockingAlignEnv, USV: USVStreamEnv}
 PRESET_OVERRIDES = {FLOCK: ("n_agents", "masses", "g"), USV: ("mass", "inertia", "current_params")}
 N_ACT = {FLOCK: 3, USV: 1}
-BOUND = {FLOCK: 100.0, USV: 50.0}
+BOUND = {FLOCK: 250.0, USV: 100.0}
 NAN, INF = float("nan"), float("inf")
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -71,7 +71,7 @@ def test_base_is_reset_and_custom_base_used() -> None:
     assert Base.resets == 2
     _, _, _, _, info = w.step(np.ones(3, dtype=np.float32))
     np.testing.assert_array_equal(info["base_action"], 0.0)
-    np.testing.assert_allclose(info["force"], 0.5 * 100.0)
+    np.testing.assert_allclose(info["force"], 0.5 * 250.0)
 
 
 def test_space_checks_raise_type_error() -> None:

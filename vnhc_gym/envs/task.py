@@ -23,7 +23,8 @@ from numpy.typing import NDArray
 
 from vnhc_gym.mechanics import FEEDBACK_MODES, ConstrainedSystem
 
-__all__ = ["TaskConfig", "ConstraintTask", "check_action", "reject_unknown", "resolve_config", "SCENARIOS"]
+__all__ = ["TaskConfig", "ConstraintTask", "apply_action", "check_action", "reject_unknown", "resolve_config",
+           "SCENARIOS"]
 
 Array = NDArray[np.float64]
 
@@ -152,6 +153,21 @@ def check_action(action: np.ndarray, out: np.ndarray, row: int, bound: np.ndarra
             return False
     for i in range(action.shape[0]):
         out[row, i] = min(max(action[i], -1.0), 1.0) * bound[i]
+    return True
+
+
+@njit(cache=True)
+def apply_action(action: np.ndarray, force: np.ndarray, applied: np.ndarray, row: int, bound: np.ndarray) -> bool:
+    """:func:`check_action` that also stores the applied action ``clip(action, -1, 1)`` in
+    ``applied[row]`` (what the action cost charges), in one compiled call (``np.clip`` alone costs
+    about half a batch-1 step); False (nothing written) if non-finite."""
+    for i in range(action.shape[0]):
+        if not np.isfinite(action[i]):
+            return False
+    for i in range(action.shape[0]):
+        a = min(max(action[i], -1.0), 1.0)
+        applied[row, i] = a
+        force[row, i] = a * bound[i]
     return True
 
 
