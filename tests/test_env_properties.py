@@ -173,7 +173,8 @@ def test_any_keywords_give_a_working_env_or_value_error(env_id, data):
         assert math.isfinite(r) and -env.unwrapped.config.reward_clip <= r <= 0.0
         assert np.all(np.isfinite(info["phi"])) and math.isfinite(info["abs_phi"])
         if term:
-            assert info["termination_reason"] in ("non_finite_state", "out_of_domain")
+            assert info["termination_reason"] in ("non_finite_state", "out_of_domain",
+                                                     "turn_rate_exceeded")
         if term or trunc:
             obs, info = env.reset()
     if kwargs.get("render_mode") == "rgb_array":

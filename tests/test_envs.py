@@ -229,7 +229,8 @@ def test_random_steps_stay_finite_and_in_space(env_id):
             assert np.all(np.isfinite(info["phi"])) and np.isfinite(info["abs_phi"])
             assert info["abs_phi"] == pytest.approx(np.mean(np.abs(info["phi"])), rel=1e-12)
             if term:
-                assert info["termination_reason"] in ("non_finite_state", "out_of_domain")
+                assert info["termination_reason"] in ("non_finite_state", "out_of_domain",
+                                                     "turn_rate_exceeded")
             else:
                 assert "termination_reason" not in info
             if term or trunc:
@@ -423,8 +424,10 @@ def test_usv_reset_is_off_the_manifold():
         phi = usv_phi(s, c)
         assert info["phi"][0] == pytest.approx(phi, abs=1e-12)
         assert 0.2 - 1e-12 <= abs(phi) <= 1.0 + 1e-12, (seed, phi)
-        forward = (xd - c[0]) * math.cos(th) + (yd - c[1]) * math.sin(th)
-        assert -1e-12 <= forward <= 1.5 + 1e-12
+        forward = (xd - c[0]) * math.cos(th) + (yd - c[1]) * math.sin(th)  # through the water
+        ground = xd * math.cos(th) + yd * math.sin(th)  # over ground, along the heading
+        assert forward >= 0.5 - 1e-12 and ground >= 0.3 - 1e-12
+        assert forward <= 1.5 + 1e-12 or ground == pytest.approx(0.3, abs=1e-12)
         assert abs(x) <= 5 and abs(y) <= 5 and -math.pi <= th <= math.pi and abs(thd) <= 0.5
 
 
@@ -886,3 +889,15 @@ def test_render_without_mode_warns():
     env.reset(seed=0)
     with pytest.warns(UserWarning, match="render_mode"):
         assert env.render() is None
+
+
+def test_usv_spinning_faster_than_the_turn_rate_limit_terminates():
+    """Docstring: |thetad| > max_turn_rate ends the episode ("turn_rate_exceeded")."""
+    env = raw(USV, max_turn_rate=2.0, force_bound=1000.0)
+    env.reset(seed=0)
+    for _ in range(50):
+        _, r, term, _, info = env.step(np.ones(1, np.float32))  # I thetadd = u = 1000 N: spins up
+        if term:
+            break
+    assert term and info["termination_reason"] == "turn_rate_exceeded"
+    assert abs(info["state"][5]) > 2.0 and math.isfinite(r)

@@ -174,7 +174,8 @@ def apply_action(action: np.ndarray, force: np.ndarray, applied: np.ndarray, row
 STATUS_OK = 0
 STATUS_NONFINITE = 1  #: the integrated state was not finite (row kept its last finite state)
 STATUS_INVALID = 2  #: the system left its physically valid region (env-specific)
-REASONS = {STATUS_NONFINITE: "non_finite_state", STATUS_INVALID: "out_of_domain"}
+STATUS_SPIN = 3  #: the turn rate exceeded its physical limit (USV)
+REASONS = {STATUS_NONFINITE: "non_finite_state", STATUS_INVALID: "out_of_domain", STATUS_SPIN: "turn_rate_exceeded"}
 #: Batches at least this large step on numba's thread pool (when it is faster, see
 #: ConstraintTask._advance_timed).
 PARALLEL_MIN_ROWS = 256

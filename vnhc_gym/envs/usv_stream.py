@@ -15,6 +15,7 @@ from vnhc_gym.envs.task import (
     STATUS_INVALID,
     STATUS_NONFINITE,
     STATUS_OK,
+    STATUS_SPIN,
     ConstraintTask,
     TaskConfig,
     _is_real,
@@ -38,13 +39,15 @@ RATE_SCALE = 2.0  #: rad/s: the turn rate is divided by this
 
 
 @njit(cache=True)
-def _observe(S: np.ndarray, aux: np.ndarray, domain: float, clip: float, out: np.ndarray, flags: np.ndarray,
-             status: np.ndarray) -> None:
+def _observe(S: np.ndarray, aux: np.ndarray, domain: float, max_rate: float, clip: float, out: np.ndarray,
+             flags: np.ndarray, status: np.ndarray) -> None:
     for r in range(S.shape[0]):
         if flags[r] & FLAG_NONFINITE:
             status[r] = STATUS_NONFINITE
         elif abs(S[r, 0]) > domain or abs(S[r, 1]) > domain:
             status[r] = STATUS_INVALID
+        elif abs(S[r, 5]) > max_rate:
+            status[r] = STATUS_SPIN
         else:
             status[r] = STATUS_OK
         th = S[r, 2]
@@ -76,14 +79,16 @@ class USVTask(ConstraintTask):
     obs_dim = USV_OBS_DIM
 
     def __init__(self, config: TaskConfig, n: int, *, current: str = "random", current_params: dict | None = None,
-                 mass: float = 10.0, inertia: float = 1.5, domain: float = 50.0, preset: str | None = None) -> None:
+                 mass: float = 10.0, inertia: float = 1.5, domain: float = 50.0, max_turn_rate: float = 10.0,
+                 preset: str | None = None) -> None:
         if preset is not None:
             if preset not in USV_PRESETS:
                 raise ValueError(f"unknown preset {preset!r}; valid names: {sorted(USV_PRESETS)}")
             pr = USV_PRESETS[preset]
             current, mass, inertia, current_params = pr.current, pr.m, pr.inertia, None
         field = get_current(current)
-        for name, value in (("mass", mass), ("inertia", inertia), ("domain", domain)):
+        for name, value in (("mass", mass), ("inertia", inertia), ("domain", domain),
+                            ("max_turn_rate", max_turn_rate)):
             if not (_is_real(value) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
         if current_params is not None:
@@ -95,6 +100,7 @@ class USVTask(ConstraintTask):
         self.field = field
         self.preset = preset
         self.domain = float(domain)
+        self.max_turn_rate = float(max_turn_rate)
         self.fixed_field = current != "random" or current_params is not None
         model = make_usv(current)
         bound = config.force_bound if config.force_bound is not None else DEFAULT_FORCE_BOUND
@@ -106,7 +112,8 @@ class USVTask(ConstraintTask):
         self.params_nominal[:] = self.nominal
         self._mismatch_mask = np.array([n_ in ("m", "I", "current_scale") for n_ in names])
         self._kick_mask = np.array([1.0, 1.0, 0.0])
-        self._observe_args = (self.state, self.aux, self.domain, config.obs_clip, self.obs, self.flags, self.status)
+        self._observe_args = (self.state, self.aux, self.domain, self.max_turn_rate, config.obs_clip, self.obs,
+                              self.flags, self.status)
 
     def sample_episode(self, rng: np.random.Generator) -> tuple[Array, Array, Array]:
         nominal = self.nominal.copy()
@@ -120,7 +127,10 @@ class USVTask(ConstraintTask):
         th = rng.uniform(-math.pi, math.pi)
         aux = np.empty((1, len(self.model.output_names)))
         self.k.aux(np.array([[x, y, th, 0.0, 0.0, 0.0]]), p_true[None, :], aux)
-        forward = rng.uniform(0.0, 1.5)
+        # Forward through the water, and at least 0.3 m/s forward over ground along the heading:
+        # on the manifold I thetadd = -m thetad v_forward, unstable when the boat goes backwards.
+        forward = rng.uniform(0.5, 1.5)
+        forward = max(forward, 0.3 - (aux[0, 0] * math.cos(th) + aux[0, 1] * math.sin(th)))
         # off the manifold by construction; (-1.0, 1.0)[rng.integers(2)] draws exactly what rng.choice([-1.0, 1.0])
         # does, 10x cheaper
         phi0 = rng.uniform(0.2, 1.0) * (-1.0, 1.0)[rng.integers(2)]
@@ -199,16 +209,21 @@ class USVStreamEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
 
     ## Starting State
 
-    Position ``U(-5, 5)^2`` m, heading ``U(-pi, pi)``, velocity = current + ``U(0, 1.5)`` m/s
-    along the heading + ``±U(0.2, 1)`` m/s across it (so ``|phi(0)| >= 0.2``), turn rate
+    Position ``U(-5, 5)^2`` m, heading ``U(-pi, pi)``, velocity = current + ``U(0.5, 1.5)`` m/s
+    along the heading (raised if needed so that the ground speed along the heading is at least
+    0.3 m/s) + ``±U(0.2, 1)`` m/s across it (so ``|phi(0)| >= 0.2``), turn rate
     ``U(-0.5, 0.5)`` rad/s. With ``current="random"`` a new field is drawn every episode.
     ``preset="paper-northeast"`` / ``"paper-anticyclone"`` reset to the paper's exact state.
 
     ## Episode End
 
     * Truncation: the time limit (``max_episode_steps=400`` with ``gym.make``, 20 s).
-    * Termination: non-finite state (``"non_finite_state"``) or the boat leaving the charted
-      square ``|x|, |y| <= domain`` (``"out_of_domain"``), in ``info["termination_reason"]``.
+    * Termination: non-finite state (``"non_finite_state"``), the boat leaving the charted
+      square ``|x|, |y| <= domain`` (``"out_of_domain"``) or spinning faster than
+      ``max_turn_rate`` (``"turn_rate_exceeded"``), in ``info["termination_reason"]``. The
+      constraint's internal dynamics are those of a knife edge: on the manifold
+      ``I thetadd = -m thetad v``, with ``v`` the ground speed along the heading, which is
+      unstable when the boat is pushed backwards (e.g. by a head current).
 
     ## Arguments
 
@@ -221,6 +236,7 @@ class USVStreamEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     | ``mass``          | 10.0      | ``m`` (kg)                                                  |
     | ``inertia``       | 1.5       | ``I`` (kg m^2)                                              |
     | ``domain``        | 50.0      | half-width of the charted square (m)                        |
+    | ``max_turn_rate`` | 10.0      | largest physical turn rate (rad/s)                          |
     | ``dt``            | 0.05      | control period (s)                                          |
     | ``substeps``      | 1         | RK4 steps per control period                                |
     | ``force_bound``   | 100.0     | largest force (N); see ``DEFAULT_FORCE_BOUND``              |
@@ -257,10 +273,11 @@ class USVStreamEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
 
     def __init__(self, scenario: str = "nominal", preset: str | None = None, current: str = "random",
                  current_params: dict[str, float] | None = None, mass: float = 10.0, inertia: float = 1.5,
-                 domain: float = 50.0, render_mode: str | None = None, **kwargs: Any) -> None:
+                 domain: float = 50.0, max_turn_rate: float = 10.0, render_mode: str | None = None,
+                 **kwargs: Any) -> None:
         config, rest = resolve_config(TaskConfig, scenario, kwargs)
         reject_unknown(rest, ("scenario", "preset", "current", "current_params", "mass", "inertia", "domain",
-                              "render_mode"))
+                              "max_turn_rate", "render_mode"))
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         if current not in CURRENTS:
@@ -269,7 +286,7 @@ class USVStreamEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self.config = config
         self.render_mode = render_mode
         self.task = USVTask(config, 1, current=current, current_params=current_params, mass=mass, inertia=inertia,
-                            domain=domain, preset=preset)
+                            domain=domain, max_turn_rate=max_turn_rate, preset=preset)
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         lim = np.float32(config.obs_clip)
         self.observation_space = spaces.Box(-lim, lim, (USV_OBS_DIM,), np.float32)
