@@ -53,7 +53,7 @@ class EnvSpec:
     """
 
     def __init__(self, system: str, nominal: ArrayLike, force_bound: ArrayLike, dt: float, substeps: int = 1,
-                 domain: float = 50.0, vector: bool = False) -> None:
+                 domain: float = 100.0, vector: bool = False) -> None:
         if system not in ("flocking", "usv"):
             raise ValueError(f"system must be 'flocking' or 'usv', got {system!r}")
         self.system = system
@@ -235,7 +235,7 @@ class GeometricController(_Policy):
                 raise TypeError("without an env, pass system=, nominal=, force_bound= and dt= "
                                 "(and substeps=, domain= for the sampled variant)")
             spec = EnvSpec(system, nominal, force_bound, dt, 1 if substeps is None else substeps,
-                           50.0 if domain is None else domain)
+                           100.0 if domain is None else domain)
         self.spec = spec
         self.variant = variant
         self.name = "geometric" if variant == "plain" else "geometric-sampled"

@@ -79,7 +79,7 @@ class USVTask(ConstraintTask):
     obs_dim = USV_OBS_DIM
 
     def __init__(self, config: TaskConfig, n: int, *, current: str = "random", current_params: dict | None = None,
-                 mass: float = 10.0, inertia: float = 1.5, domain: float = 50.0, max_turn_rate: float = 10.0,
+                 mass: float = 10.0, inertia: float = 1.5, domain: float = 100.0, max_turn_rate: float = 10.0,
                  preset: str | None = None) -> None:
         if preset is not None:
             if preset not in USV_PRESETS:
@@ -118,7 +118,7 @@ class USVTask(ConstraintTask):
     def sample_episode(self, rng: np.random.Generator) -> tuple[Array, Array, Array]:
         nominal = self.nominal.copy()
         if not self.fixed_field:
-            for k, v in random_field_params(int(rng.integers(2**31))).items():
+            for k, v in random_field_params(rng).items():
                 nominal[self._cidx[k]] = v
         p_true = self.mismatch(rng, nominal, self._mismatch_mask)
         if self.preset is not None:
@@ -235,7 +235,7 @@ class USVStreamEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     | ``current_params``| None      | overrides of the current's parameters (fixes a random field)|
     | ``mass``          | 10.0      | ``m`` (kg)                                                  |
     | ``inertia``       | 1.5       | ``I`` (kg m^2)                                              |
-    | ``domain``        | 50.0      | half-width of the charted square (m)                        |
+    | ``domain``        | 100.0     | half-width of the charted square (m)                        |
     | ``max_turn_rate`` | 10.0      | largest physical turn rate (rad/s)                          |
     | ``dt``            | 0.05      | control period (s)                                          |
     | ``substeps``      | 1         | RK4 steps per control period                                |
@@ -273,7 +273,7 @@ class USVStreamEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
 
     def __init__(self, scenario: str = "nominal", preset: str | None = None, current: str = "random",
                  current_params: dict[str, float] | None = None, mass: float = 10.0, inertia: float = 1.5,
-                 domain: float = 50.0, max_turn_rate: float = 10.0, render_mode: str | None = None,
+                 domain: float = 100.0, max_turn_rate: float = 10.0, render_mode: str | None = None,
                  **kwargs: Any) -> None:
         config, rest = resolve_config(TaskConfig, scenario, kwargs)
         reject_unknown(rest, ("scenario", "preset", "current", "current_params", "mass", "inertia", "domain",

@@ -103,13 +103,15 @@ def _vortex(x: sp.Symbol, y: sp.Symbol, p: dict[str, sp.Symbol]) -> tuple[sp.Exp
     return -strength * dy, strength * dx
 
 
-def random_field_params(seed: int, n_modes: int = RANDOM_MODES, wavelength: float = 8.0,
+def random_field_params(seed: int | np.random.Generator, n_modes: int = RANDOM_MODES, wavelength: float = 8.0,
                         speed: float = 1.0) -> dict[str, float]:
     """Parameters of the ``random`` field for ``seed``: a divergence-free field of RMS speed ~``speed``.
 
-    Wave vectors have random directions and lengths around ``2 pi / wavelength``.
+    ``seed`` is an integer or a ``numpy.random.Generator`` to draw from (the environments pass
+    their own, which is cheaper than seeding a new generator every episode).  Wave vectors have
+    random directions and lengths around ``2 pi / wavelength``.
     """
-    rng = np.random.default_rng(seed)
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     k0 = 2 * np.pi / wavelength
     angles = rng.uniform(0, 2 * np.pi, n_modes)
     norms = k0 * rng.uniform(0.5, 1.5, n_modes)
