@@ -104,9 +104,9 @@ class GymnasiumVecEnvAdapter(VecEnv):
             if any(o != options[0] for o in options[1:]):
                 raise ValueError("the vector env takes one options dict for all sub-environments; "
                                  "set_options() with different dicts is not supported")
-            obs, infos = self.venv.reset(seed=seed, options=dict(options[0]))
+            obs, infos = self.venv.reset(seed=seed, options=dict(options[0]))  # type: ignore[arg-type]
         else:
-            obs, infos = self.venv.reset(seed=seed)
+            obs, infos = self.venv.reset(seed=seed)  # type: ignore[arg-type]  # lists are accepted
         self.reset_infos = infos_to_list(infos, self.num_envs)
         self._reset_seeds()
         self._reset_options()
@@ -180,7 +180,7 @@ class GymnasiumVecEnvAdapter(VecEnv):
         envs = getattr(self.venv, "envs", None)
         if envs is not None:  # SyncVectorEnv: call the selected sub-environments only
             return [envs[i].get_wrapper_attr(method_name)(*method_args, **method_kwargs) for i in idx]
-        results = self.venv.call(method_name, *method_args, **method_kwargs)
+        results = self.venv.call(method_name, *method_args, **method_kwargs)  # type: ignore[attr-defined]
         return [results[i] for i in idx]
 
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
@@ -197,7 +197,7 @@ class GymnasiumVecEnvAdapter(VecEnv):
             warnings.warn(f"The render mode is {self.render_mode}, but this method assumes it is `rgb_array` "
                           "to obtain images.", stacklevel=2)
             return [None] * self.num_envs
-        return list(self.venv.render() or ())
+        return list(self.venv.render() or ())  # type: ignore[arg-type]
 
     def render(self, mode: str | None = None) -> np.ndarray | None:
         return super().render(mode=mode)

@@ -93,8 +93,10 @@ class TaskConfig:
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first invalid argument."""
         def positive(name: str, value: float | None, allow_none: bool = False) -> None:
-            if value is None and allow_none:
-                return
+            if value is None:
+                if allow_none:
+                    return
+                raise ValueError(f"{name} must be a finite number > 0, got None")
             if not (_is_real(value) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
 

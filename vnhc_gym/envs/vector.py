@@ -152,7 +152,7 @@ class ConstraintVectorEnv(VectorEnv):
         task_args = [p.name for p in inspect.signature(self.task_cls.__init__).parameters.values()
                      if p.kind is inspect.Parameter.KEYWORD_ONLY]
         proto_task: ConstraintTask = self._proto.task  # type: ignore[attr-defined]
-        self.task: ConstraintTask = self.task_cls(proto_task.config, n,  # type: ignore[call-arg]
+        self.task: ConstraintTask = self.task_cls(proto_task.config, n,  # type: ignore[call-arg, arg-type]
                                                   **{k: v for k, v in kwargs.items() if k in task_args})
         if not (np.array_equal(self.task.params_nominal[0], proto_task.params_nominal[0])
                 and np.array_equal(self.task.force_bound, proto_task.force_bound)
@@ -163,7 +163,7 @@ class ConstraintVectorEnv(VectorEnv):
         self.num_envs = n
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         self.autoreset_mode = mode
-        self.metadata = {**type(self).metadata, **self._proto.metadata, "autoreset_mode": mode}
+        self.metadata = {**type(self).metadata, **self._proto.metadata, "autoreset_mode": mode}  # type: ignore[misc]
         self.render_mode = self._proto.render_mode
         self.config = self.task.config
         self.scenario = kwargs.get("scenario", "nominal")
@@ -199,7 +199,7 @@ class ConstraintVectorEnv(VectorEnv):
         elif isinstance(seed, int | np.integer) and not isinstance(seed, bool):
             seeds = [int(seed) + i for i in range(n)]
         else:
-            seeds = list(seed)
+            seeds = list(seed)  # type: ignore[arg-type]
             if len(seeds) != n:
                 raise ValueError(f"If seeds are passed as a list the length must match num_envs={n} "
                                  f"but got length={len(seeds)}.")
@@ -260,6 +260,9 @@ class ConstraintVectorEnv(VectorEnv):
         if bad >= 0:
             raise ValueError(f"actions must be finite, got row {bad}: {a[bad]!r}")
         rngs = self._rngs
+        if rngs is None:
+            raise RuntimeError("call reset() before step()")
+        all_rngs = rngs
         if next_step:
             rows = np.flatnonzero(pending)
             rngs = list(rngs)
@@ -273,7 +276,7 @@ class ConstraintVectorEnv(VectorEnv):
         reward = task.reward.copy()
         final: dict[str, Any] | None = None
         if next_step:
-            task.reset_rows(rows, self._rngs)
+            task.reset_rows(rows, all_rngs)
             terminated[rows] = False
             truncated[rows] = False
             pending[rows] = False
@@ -287,7 +290,7 @@ class ConstraintVectorEnv(VectorEnv):
                 final_obs[i] = task.obs32[i].copy()
             final = {"final_obs": final_obs, "_final_obs": done, "final_info": self._infos(done.copy())[1],
                      "_final_info": done.copy()}
-            task.reset_rows(rows, self._rngs)
+            task.reset_rows(rows, all_rngs)
         obs, infos = self._infos()
         if final is not None:
             infos.update(final)
@@ -314,7 +317,7 @@ class ConstraintVectorEnv(VectorEnv):
         self._proto.close()
 
     # ------------------------------------------------------------------ SyncVectorEnv-style helpers
-    @property
+    @property  # type: ignore[misc]
     def np_random(self) -> tuple[np.random.Generator, ...]:  # type: ignore[override]
         """The sub-environments' generators (like ``SyncVectorEnv.np_random``)."""
         if self._rngs is None:
