@@ -11,13 +11,13 @@ from gymnasium import spaces
 from numba import njit
 from numpy.typing import NDArray
 
+from vnhc_gym.envs.base import ConstraintEnv
 from vnhc_gym.envs.task import (
     STATUS_NONFINITE,
     STATUS_OK,
     ConstraintTask,
     TaskConfig,
     _is_real,
-    apply_action,
     reject_unknown,
     resolve_config,
 )
@@ -137,7 +137,7 @@ class FlockingTask(ConstraintTask):
         return self._kick_mask
 
 
-class FlockingAlignEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
+class FlockingAlignEnv(ConstraintEnv):
     r"""Three particles align their velocities with a free-falling leader (paper, Section IV-A).
 
     ## Description
@@ -240,17 +240,16 @@ class FlockingAlignEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     * v0: initial release.
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 20}  # noqa: RUF012 (Gymnasium API)
+    task: FlockingTask
+
 
     def __init__(self, scenario: str = "nominal", preset: str | None = None, n_agents: int = 4,
                  masses: Any = 2.0, g: float = 10.0, render_mode: str | None = None, **kwargs: Any) -> None:
         config, rest = resolve_config(FlockingConfig, scenario, kwargs)
         reject_unknown(rest, ("scenario", "preset", "n_agents", "masses", "g", "render_mode"))
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        self._check_render_mode(render_mode)
         self.scenario = scenario
         self.config = config
-        self.render_mode = render_mode
         self.task = FlockingTask(config, 1, n_agents=n_agents, masses=masses, g=g, preset=preset)
         self.n_agents = self.task.n_agents
         m = self.n_agents - 1
@@ -258,33 +257,6 @@ class FlockingAlignEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         lim = np.float32(config.obs_clip)
         self.observation_space = spaces.Box(-lim, lim, (self.task.obs_dim,), np.float32)
         self._bound = self.task.force_bound
-        self._renderer: Any = None
-        self._rngs: list[np.random.Generator] = []
-
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
-              ) -> tuple[NDArray[np.float32], dict[str, Any]]:
-        super().reset(seed=seed)
-        self._rngs = [self.np_random]
-        self.task.reset_row(0, self.np_random)
-        if self.render_mode == "human":
-            self.render()
-        return self.task.obs32[0].copy(), self.task.info(0)
-
-    def step(self, action: Any) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
-        a = action if isinstance(action, np.ndarray) else np.asarray(action, dtype=np.float64)
-        if a.shape != self.action_space.shape:
-            raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
-        task = self.task
-        if a.dtype != np.float64 and a.dtype != np.float32:
-            if a.dtype.kind not in "fiub":
-                raise ValueError(f"action must be real numbers, got dtype {a.dtype}")
-            a = a.astype(np.float64)
-        if not apply_action(a, task.force, task.action, 0, self._bound):  # task.action = clip(a): charged by the cost
-            raise ValueError(f"action must be finite, got {action!r}")
-        status = task.step(self._rngs)
-        if self.render_mode == "human":
-            self.render()
-        return task.obs32[0].copy(), float(task.reward[0]), bool(status[0]), False, task.info(0)
 
     def render(self) -> NDArray[np.uint8] | None:
         if self.render_mode is None:
@@ -295,14 +267,4 @@ class FlockingAlignEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         if self._renderer is None:
             self._renderer = FlockingRenderer(self.n_agents, self.render_mode, self.metadata["render_fps"])
         return self._renderer.draw(self.task.state[0], self.task.phi[0])
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        state["_renderer"] = None  # a pygame window does not travel
-        return state
-
-    def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
 

@@ -11,6 +11,7 @@ from gymnasium import spaces
 from numba import njit
 from numpy.typing import NDArray
 
+from vnhc_gym.envs.base import ConstraintEnv
 from vnhc_gym.envs.task import (
     STATUS_INVALID,
     STATUS_NONFINITE,
@@ -19,7 +20,6 @@ from vnhc_gym.envs.task import (
     ConstraintTask,
     TaskConfig,
     _is_real,
-    apply_action,
     reject_unknown,
     resolve_config,
 )
@@ -162,7 +162,7 @@ class USVTask(ConstraintTask):
         return {k: float(self.params_true[i, j]) for k, j in self._cidx.items()}
 
 
-class USVStreamEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
+class USVStreamEnv(ConstraintEnv):
     r"""A boat in a sea current held to an affine velocity constraint (paper, Section IV-B).
 
     ## Description
@@ -269,7 +269,8 @@ class USVStreamEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     * v0: initial release.
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 20}  # noqa: RUF012 (Gymnasium API)
+    task: USVTask
+
 
     def __init__(self, scenario: str = "nominal", preset: str | None = None, current: str = "random",
                  current_params: dict[str, float] | None = None, mass: float = 10.0, inertia: float = 1.5,
@@ -278,46 +279,17 @@ class USVStreamEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         config, rest = resolve_config(TaskConfig, scenario, kwargs)
         reject_unknown(rest, ("scenario", "preset", "current", "current_params", "mass", "inertia", "domain",
                               "max_turn_rate", "render_mode"))
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        self._check_render_mode(render_mode)
         if current not in CURRENTS:
             raise ValueError(f"unknown current {current!r}; valid names: {sorted(CURRENTS)}")
         self.scenario = scenario
         self.config = config
-        self.render_mode = render_mode
         self.task = USVTask(config, 1, current=current, current_params=current_params, mass=mass, inertia=inertia,
                             domain=domain, max_turn_rate=max_turn_rate, preset=preset)
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         lim = np.float32(config.obs_clip)
         self.observation_space = spaces.Box(-lim, lim, (USV_OBS_DIM,), np.float32)
         self._bound = self.task.force_bound
-        self._renderer: Any = None
-        self._rngs: list[np.random.Generator] = []
-
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
-              ) -> tuple[NDArray[np.float32], dict[str, Any]]:
-        super().reset(seed=seed)
-        self._rngs = [self.np_random]
-        self.task.reset_row(0, self.np_random)
-        if self.render_mode == "human":
-            self.render()
-        return self.task.obs32[0].copy(), self.task.info(0)
-
-    def step(self, action: Any) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
-        a = action if isinstance(action, np.ndarray) else np.asarray(action, dtype=np.float64)
-        if a.shape != self.action_space.shape:
-            raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
-        task = self.task
-        if a.dtype != np.float64 and a.dtype != np.float32:
-            if a.dtype.kind not in "fiub":
-                raise ValueError(f"action must be real numbers, got dtype {a.dtype}")
-            a = a.astype(np.float64)
-        if not apply_action(a, task.force, task.action, 0, self._bound):  # task.action = clip(a): charged by the cost
-            raise ValueError(f"action must be finite, got {action!r}")
-        status = task.step(self._rngs)
-        if self.render_mode == "human":
-            self.render()
-        return task.obs32[0].copy(), float(task.reward[0]), bool(status[0]), False, task.info(0)
 
     def render(self) -> NDArray[np.uint8] | None:
         if self.render_mode is None:
@@ -335,13 +307,3 @@ class USVStreamEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             return scale * task.field.value(x, y, params)
 
         return self._renderer.draw(task.state[0], task.phi[0], current)
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        state["_renderer"] = None  # a pygame window does not travel
-        return state
-
-    def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
