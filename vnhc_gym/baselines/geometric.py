@@ -142,6 +142,15 @@ class _Policy:
     obs_dim: int
     act_dim: int
 
+    def _set_dims(self, env: Any, obs_dim: int | None, act_dim: int | None) -> None:
+        """Observation / action sizes from ``env``'s spaces, or the explicit ones."""
+        if env is not None:
+            obs_space, act_space = _spaces(env)
+            obs_dim, act_dim = _flat_dim(obs_space), _flat_dim(act_space)
+        if obs_dim is None or act_dim is None:
+            raise TypeError("pass an env or obs_dim= and act_dim=")
+        self.obs_dim, self.act_dim = int(obs_dim), int(act_dim)
+
     def _check_obs(self, obs: ArrayLike) -> tuple[Array, bool]:
         o = np.asarray(obs, dtype=np.float64)
         if o.ndim == 1 and o.shape[0] == self.obs_dim:
@@ -393,12 +402,7 @@ class ZeroPolicy(_Policy):
     """Always action 0 (no force): the uncontrolled reference."""
 
     def __init__(self, env: Any = None, *, obs_dim: int | None = None, act_dim: int | None = None) -> None:
-        if env is not None:
-            obs_space, act_space = _spaces(env)
-            obs_dim, act_dim = _flat_dim(obs_space), _flat_dim(act_space)
-        if obs_dim is None or act_dim is None:
-            raise TypeError("pass an env or obs_dim= and act_dim=")
-        self.obs_dim, self.act_dim = int(obs_dim), int(act_dim)
+        self._set_dims(env, obs_dim, act_dim)
         self.name = "zero"
 
     def _act(self, o: Array) -> Array:
@@ -413,12 +417,7 @@ class RandomPolicy(_Policy):
 
     def __init__(self, env: Any = None, seed: int | None = 0, *, obs_dim: int | None = None,
                  act_dim: int | None = None) -> None:
-        if env is not None:
-            obs_space, act_space = _spaces(env)
-            obs_dim, act_dim = _flat_dim(obs_space), _flat_dim(act_space)
-        if obs_dim is None or act_dim is None:
-            raise TypeError("pass an env or obs_dim= and act_dim=")
-        self.obs_dim, self.act_dim = int(obs_dim), int(act_dim)
+        self._set_dims(env, obs_dim, act_dim)
         self.seed = seed
         self.name = "random"
         self.rng = np.random.default_rng(seed)
