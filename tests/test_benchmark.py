@@ -45,7 +45,7 @@ def test_cli_benchmark_quick_in_process(tmp_path, capsys) -> None:
 def test_cli_benchmark_console_command(tmp_path) -> None:
     out = tmp_path / "tmp"
     proc = subprocess.run(["vnhc-gym", "benchmark", "--quick", "--out", str(out), "--no-progress",
-                           "--envs", "usv", "--scenarios", "nominal", "coarse"],
+                           "--envs", "usv", "--scenarios", "nominal", "coarse", "--no-zoo"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     _check_outputs(out, envs=("usv",), n_scenarios=2)
@@ -71,7 +71,8 @@ def test_benchmark_agents_folder(tmp_path) -> None:
     out = tmp_path / "out"
     with pytest.warns(UserWarning, match="pickle"):
         code = main(["benchmark", "--quick", "--out", str(out), "--no-progress", "--envs", "usv", "--scenarios",
-                     "nominal", "saturated", "--policies", "zero", "--agents", str(agents), "--no-figures"])
+                     "nominal", "saturated", "--policies", "zero", "--agents", str(agents), "--no-figures",
+                     "--no-zoo"])
     assert code == 0
     rows = list(csv.DictReader(open(out / "benchmark.csv")))
     assert sorted({r["policy"] for r in rows}) == ["a2c", "ppo", "residual_ppo", "zero"]
