@@ -65,7 +65,7 @@ def _time_per_call(fn: Callable[[], object], repeats: int, target_s: float = 0.0
 
 def _states(model: ConstrainedSystem, batch: int, rng: np.random.Generator) -> np.ndarray:
     s = rng.uniform(-2.0, 2.0, (batch, 2 * model.n))
-    if model.system.name.startswith("flocking"):
+    if model.name.startswith("flocking"):
         na = model.n // 2
         s[:, 4 * na - 1] = s[:, 3 * na - 1] - rng.uniform(0.5, 3.0, batch)  # keep C regular
     return np.ascontiguousarray(s)

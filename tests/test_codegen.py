@@ -1,13 +1,25 @@
-"""Generated-code checks against independent evaluations (sympy itself, numpy formulas)."""
+"""Generated-code checks against independent evaluations (sympy itself, numpy formulas), and the
+recipe-keyed cache that lets a warm start skip sympy entirely."""
 
 from __future__ import annotations
+
+import json
+import os
+import pickle
+import subprocess
+import sys
+import textwrap
+from functools import partial
+from pathlib import Path
 
 import numpy as np
 import pytest
 import sympy as sp
 
 from vnhc_gym.mechanics import ConstrainedSystem, MechanicalSystem, VelocityConstraint
-from vnhc_gym.systems import CURRENTS, make_usv
+from vnhc_gym.mechanics.codegen import CODEGEN_VERSION, cache_dir, recipe_key, sources_digest
+from vnhc_gym.mechanics.model import CORE_SOURCES
+from vnhc_gym.systems import CURRENTS, flocking_system, make_flocking, make_usv, usv_system
 
 
 def test_powers_in_denominators_are_parenthesised() -> None:
@@ -48,3 +60,197 @@ def test_usv_current_outputs_match_the_current_library(name: str) -> None:
         jy = (field.value(s[0], s[1] + h, params) - field.value(s[0], s[1] - h, params)) / (2 * h)
         np.testing.assert_allclose(row[:2], c, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(row[2:], [jx[0], jy[0], jx[1], jy[1]], rtol=1e-6, atol=1e-7)
+
+
+# --------------------------------------------------------------------------- recipe-keyed cache
+
+_WARM_SCRIPT = textwrap.dedent("""
+    import json, pickle, sys
+    import numpy as np
+    from vnhc_gym.systems import make_flocking, make_usv
+
+    out = {}
+    f = make_flocking(4)
+    u = make_usv("northeast")
+    out["phi_flocking"] = f.phi(np.arange(16.0)).tolist()
+    out["phi_usv"] = u.phi(np.arange(6.0)).tolist()
+    out["sympy_after_phi"] = "sympy" in sys.modules
+    blob = pickle.dumps(u)
+    out["sympy_in_pickle"] = b"sympy" in blob
+    u2 = pickle.loads(blob)
+    out["phi_unpickled"] = u2.phi(np.arange(6.0)).tolist()
+    out["params"] = u2.params(m=3.0).tolist()
+    out["sympy_after_pickle"] = "sympy" in sys.modules
+    out["system_name"] = u2.system.name  # lazy: builds the symbolic side now
+    out["sympy_after_system"] = "sympy" in sys.modules
+    print(json.dumps(out))
+""")
+
+
+def _run_fresh(cache: Path) -> dict:
+    env = {**os.environ, "VNHC_GYM_CACHE_DIR": str(cache)}
+    proc = subprocess.run([sys.executable, "-c", _WARM_SCRIPT], env=env, capture_output=True, text=True,
+                          timeout=600, check=False)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_warm_start_does_not_import_sympy(tmp_path: Path) -> None:
+    """With a warm cache, making the shipped systems, evaluating and pickling them never imports sympy."""
+    cold = _run_fresh(tmp_path)
+    assert cold["sympy_after_phi"]  # the first process derived and generated the code
+    warm = _run_fresh(tmp_path)
+    assert not warm["sympy_after_phi"]
+    assert not warm["sympy_in_pickle"]
+    assert not warm["sympy_after_pickle"]
+    assert warm["sympy_after_system"] and warm["system_name"] == "usv_northeast"
+    s = np.arange(16.0)  # flocking: q = s[:8], qd = (xd_1..4, zd_1..4) = s[8:]
+    xd, zd = s[8:12], s[12:16]
+    np.testing.assert_allclose(warm["phi_flocking"], xd[3] * zd[:3] - xd[:3] * zd[3], rtol=1e-14)
+    for run in (cold, warm):
+        np.testing.assert_allclose(run["phi_flocking"], warm["phi_flocking"], rtol=0)
+        np.testing.assert_allclose(run["phi_usv"], warm["phi_usv"], rtol=0)
+        np.testing.assert_allclose(run["phi_unpickled"], warm["phi_usv"], rtol=0)
+        assert run["params"] == [3.0, 1.5, 1.0, 1.0, 1.0]
+
+
+def test_recipe_key_depends_on_recipe_version_and_source_text(tmp_path: Path) -> None:
+    a, b = tmp_path / "a.py", tmp_path / "b.py"
+    a.write_text("X = 1\n")
+    b.write_text("Y = 2\n")
+    base = recipe_key(("flocking", 4), sources_digest([a, b]))
+    assert recipe_key(("flocking", 4), sources_digest([a, b])) == base
+    assert recipe_key(("flocking", 5), sources_digest([a, b])) != base
+    assert recipe_key(("flocking", "4"), sources_digest([a, b])) != base
+    assert recipe_key(("flocking", 4), sources_digest([a])) != base
+    b.write_text("Y = 3\n")
+    assert recipe_key(("flocking", 4), sources_digest([a, b])) != base
+    # The version enters the cache folder (and the hash load_module names the module by).
+    assert cache_dir().name == f"codegen-v{CODEGEN_VERSION}"
+    with pytest.raises(TypeError, match="recipe items"):
+        recipe_key(("flocking", np.int64(4)), "digest")
+    with pytest.raises(TypeError, match="non-empty tuple"):
+        recipe_key([], "digest")  # type: ignore[arg-type]
+
+
+def test_shipped_recipes_hash_the_files_that_define_them() -> None:
+    names = {p.name for p in CORE_SOURCES}
+    assert names == {"system.py", "constraint.py", "codegen.py"}
+    assert all(p.is_file() for p in CORE_SOURCES)
+
+
+_BUILDS: list[float] = []
+
+
+def _spring(k: float, name: str = "recipe_spring") -> tuple[MechanicalSystem, VelocityConstraint, dict]:
+    """x'' = -k x + u, phi = xd + x; records each call so tests can see when the builder runs."""
+    _BUILDS.append(k)
+    x, xd = sp.symbols("x xd", real=True)
+    kk = sp.Symbol("k", positive=True)
+    system = MechanicalSystem(name=name, q=(x,), qd=(xd,), mass_matrix=sp.Matrix([[1]]),
+                              control_forces=sp.Matrix([[1]]), potential=kk * x**2 / 2, params={kk: k})
+    return system, VelocityConstraint(sp.Matrix([xd + x])), {"x2": x**2}
+
+
+def test_from_recipe_calls_build_only_on_a_miss_and_regenerates_on_source_edit(tmp_path: Path,
+                                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("VNHC_GYM_CACHE_DIR", str(tmp_path / "cache"))
+    src = tmp_path / "spring_source.py"
+    src.write_text("# version 1\n")
+    _BUILDS.clear()
+    m1 = ConstrainedSystem.from_recipe(("spring",), partial(_spring, 3.0), sources=[src])
+    assert _BUILDS == [3.0]  # miss: built to generate the code
+    assert (m1.name, m1.n, m1.m, m1.n_gains, m1.holonomic) == ("recipe_spring", 1, 1, 1, False)
+    assert m1.param_names == ("k",) and m1.default_params.tolist() == [3.0] and m1.output_names == ("x2",)
+    assert m1.recipe == ("spring",)
+    generated = sorted((tmp_path / "cache").rglob("vnhc_gen_*.py"))
+    assert len(generated) == 1
+
+    m2 = ConstrainedSystem.from_recipe(("spring",), partial(_spring, 3.0), sources=[src])
+    assert _BUILDS == [3.0]  # hit: nothing built
+    assert m2.kernels is m1.kernels
+    # Metadata comes from the module: a different builder is not consulted on a hit ...
+    m3 = ConstrainedSystem.from_recipe(("spring",), partial(_spring, 5.0, "other"), sources=[src])
+    assert m3.default_params.tolist() == [3.0] and _BUILDS == [3.0]
+    # ... but is checked against the module once the symbolic side is built.
+    with pytest.raises(RuntimeError, match="does not match its cached module"):
+        _ = m3.system
+    assert m2.system.name == "recipe_spring" and _BUILDS == [3.0, 5.0, 3.0]
+
+    src.write_text("# version 2\n")  # an edit of a source file gives a new key and a new module
+    m4 = ConstrainedSystem.from_recipe(("spring",), partial(_spring, 3.0), sources=[src])
+    assert _BUILDS == [3.0, 5.0, 3.0, 3.0]
+    assert m4.kernels is not m1.kernels
+    assert len(sorted((tmp_path / "cache").rglob("vnhc_gen_*.py"))) == 2
+
+    s = np.array([0.7, -0.2])
+    np.testing.assert_allclose(m4.phi(s), [s[1] + s[0]], rtol=1e-15)
+    np.testing.assert_allclose(m4.outputs(s), [s[0] ** 2], rtol=1e-15)
+    # u* = -(k phi + G), G = d(xd + x)/dt at u = 0 = -k x + xd (C = 1)
+    np.testing.assert_allclose(m4.control(s, gains=2.0), [-(2.0 * (s[1] + s[0]) + (-3.0 * s[0] + s[1]))],
+                               rtol=1e-14)
+
+
+def test_recipe_model_pickles_its_recipe_not_sympy_objects(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("VNHC_GYM_CACHE_DIR", str(tmp_path / "cache"))
+    src = tmp_path / "spring_source.py"
+    src.write_text("# pickle\n")
+    model = ConstrainedSystem.from_recipe(("spring", "pickle"), partial(_spring, 2.0), sources=[src])
+    _ = model.symbolic  # build the sympy side: it must not travel
+    _BUILDS.clear()
+    blob = pickle.dumps(model)
+    assert b"sympy" not in blob
+    clone = pickle.loads(blob)
+    assert _BUILDS == []  # unpickling re-imports the cached module, it does not rebuild
+    assert clone.kernels is model.kernels and clone.recipe == model.recipe
+    np.testing.assert_array_equal(clone.phi(np.array([1.0, 2.0])), model.phi(np.array([1.0, 2.0])))
+    assert clone.system.name == "recipe_spring" and _BUILDS == [2.0]
+
+
+def test_explicit_model_still_pickles_its_symbolic_input() -> None:
+    system, constraint = flocking_system(2)
+    model = ConstrainedSystem(system, constraint)
+    clone = pickle.loads(pickle.dumps(model))
+    assert clone.recipe is None and clone.system.name == "flocking2" and clone.kernels is model.kernels
+
+
+@pytest.mark.parametrize("current", ["northeast", "shear"])
+def test_recipe_usv_metadata_matches_the_symbolic_system(current: str) -> None:
+    model = make_usv(current)
+    system, constraint, outputs = usv_system(current)
+    explicit = ConstrainedSystem(system, constraint, outputs=outputs)
+    for attr in ("name", "n", "m", "n_gains", "holonomic", "param_names", "output_names"):
+        assert getattr(model, attr) == getattr(explicit, attr), attr
+    np.testing.assert_array_equal(model.default_params, system.default_param_values())
+    overrides = {"m": 3.0, "current_scale": 0.5}
+    np.testing.assert_array_equal(model.params(**overrides), system.default_param_values(overrides))
+    with pytest.raises(ValueError) as from_meta:
+        model.params(mass=1.0)
+    with pytest.raises(ValueError) as from_sympy:
+        system.default_param_values({"mass": 1.0})
+    assert str(from_meta.value) == str(from_sympy.value)
+
+
+def test_recipe_flocking_matches_explicit_model_and_hand_formulas() -> None:
+    n = 4
+    model = make_flocking(n)
+    explicit = ConstrainedSystem(*flocking_system(n))
+    assert model.kernels is not explicit.kernels  # two independent code paths and cache keys
+    for attr in ("name", "n", "m", "n_gains", "holonomic", "param_names", "output_names"):
+        assert getattr(model, attr) == getattr(explicit, attr), attr
+    np.testing.assert_array_equal(model.default_params, explicit.default_params)
+    rng = np.random.default_rng(7)
+    states = rng.normal(size=(32, 4 * n))
+    params = np.column_stack([rng.uniform(1, 3, size=(32, n)), rng.uniform(5, 15, size=32)])
+    gains = rng.uniform(0.1, 3.0, size=(32, n - 1))
+    xd, zd = states[:, 2 * n:3 * n], states[:, 3 * n:]
+    masses, g = params[:, :n], params[:, n]
+    phi_hand = xd[:, -1:] * zd[:, :-1] - xd[:, :-1] * zd[:, -1:]
+    np.testing.assert_allclose(model.phi(states, params), phi_hand, rtol=1e-13, atol=1e-14)
+    np.testing.assert_array_equal(model.phi(states, params), explicit.phi(states, params))
+    # C = diag((xd_N - zd_N) / m_b), G_b = g (xd_b - xd_N); u* = C^-1 (-K phi - G).
+    c_hand = (xd[:, -1:] - zd[:, -1:]) / masses[:, :-1]
+    g_hand = g[:, None] * (xd[:, :-1] - xd[:, -1:])
+    u_hand = (-gains * phi_hand - g_hand) / c_hand
+    np.testing.assert_allclose(model.control(states, gains, params), u_hand, rtol=1e-10, atol=1e-12)
+    np.testing.assert_array_equal(model.control(states, gains, params), explicit.control(states, gains, params))

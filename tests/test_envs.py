@@ -650,7 +650,9 @@ def test_disturbance_scenario_kicks_velocities(env_id):
                 _, info = env.reset()
         results[scenario] = (unexplained, kicks)
     unexplained, kicks = results["disturbance"]
-    assert unexplained >= 0.01 * steps
+    # USV: ~75 kicks, each beyond the limit with probability ~exp(-0.5^2 / (2 * 0.3^2)) = 0.25,
+    # so ~19 expected (sd ~4); 5 leaves a > 3 sd margin.  Nominal must explain every step.
+    assert unexplained >= 5
     assert results["nominal"] == (0, [])
     kicks = np.array(kicks)
     assert 0.03 * steps <= len(kicks) <= 0.07 * steps

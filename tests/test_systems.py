@@ -7,11 +7,15 @@ closed-loop solution ``phi(t) = exp(-K t) phi(0)`` of Theorem 2.
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from vnhc_gym.mechanics import ConstrainedSystem, simulate
-from vnhc_gym.systems import CURRENTS, FLOCKING_PRESETS, USV_PRESETS, make_flocking, make_usv
+from vnhc_gym.systems import CURRENTS, FLOCKING_PRESETS, USV_PRESETS, make_flocking, make_usv, random_field_params
+from vnhc_gym.systems.currents import RANDOM_PARAM_NAMES, RANDOM_WEIGHTS
 
 CURRENT_NAMES = ("northeast", "anticyclone", "vortex", "shear", "random")
 DT = 0.01
@@ -48,17 +52,44 @@ def current_numpy(name: str, x: np.ndarray, y: np.ndarray, p: dict[str, float]) 
         return -w * dy, w * dx
     if name == "shear":
         return p["c_u0"] + p["c_s"] * y, 0 * x
-    if name == "random":  # C = (d psi/dy, -d psi/dx), psi = sum a sin(kx x + ky y + ph)
+    if name == "random":  # C = (d psi/dy, -d psi/dx), psi = sum A cos(k0 (i x + j y)) + B sin(k0 (i x + j y))
         c1, c2 = 0 * x, 0 * x
-        k = 0
-        while f"c_a{k}" in p:
-            arg = p[f"c_kx{k}"] * x + p[f"c_ky{k}"] * y + p[f"c_ph{k}"]
-            c1 = c1 + p[f"c_a{k}"] * p[f"c_ky{k}"] * np.cos(arg)
-            c2 = c2 - p[f"c_a{k}"] * p[f"c_kx{k}"] * np.cos(arg)
-            k += 1
-        assert k == 6
+        for (i, j), a, b in random_modes_numpy(p):
+            arg = RANDOM_K0_M * (i * x + j * y)
+            dpsi = RANDOM_K0_M * (-a * np.sin(arg) + b * np.cos(arg))  # d psi_mode / d(k0 (i x + j y)) * k0
+            c1, c2 = c1 + j * dpsi, c2 - i * dpsi
         return c1, c2
     raise KeyError(name)
+
+
+RANDOM_PERIOD_M = 16.0
+RANDOM_K0_M = 2 * np.pi / RANDOM_PERIOD_M
+
+
+def random_modes_numpy(p: dict[str, float]) -> list[tuple[tuple[int, int], float, float]]:
+    """The 14 lattice modes (i, j) of the random field, i > 0 or (i = 0, j > 0), 1 <= i^2 + j^2 <= 9,
+    with their amplitudes (A, B) = (c_a_<i>_<j>, c_b_<i>_<j>), 'm' for a minus sign."""
+    out = []
+    for i in range(4):
+        for j in range(-3, 4):
+            if (i > 0 or j > 0) and 1 <= i * i + j * j <= 9:
+                label = f"{i}_{j}" if j >= 0 else f"{i}_m{-j}"
+                out.append(((i, j), p[f"c_a_{label}"], p[f"c_b_{label}"]))
+    assert len(out) == 14
+    return out
+
+
+def random_jacobian_numpy(x: np.ndarray, y: np.ndarray, p: dict[str, float]) -> np.ndarray:
+    """dC/d(x, y) of the random field by hand: per mode n = (i, j), d2 psi/dx_p dx_q = -k0^2 n_p n_q (A cos + B sin)."""
+    jac = np.zeros((*np.shape(x), 2, 2))
+    for (i, j), a, b in random_modes_numpy(p):
+        arg = RANDOM_K0_M * (i * x + j * y)
+        w = -RANDOM_K0_M**2 * (a * np.cos(arg) + b * np.sin(arg))
+        jac[..., 0, 0] += j * i * w  # d/dx dpsi/dy
+        jac[..., 0, 1] += j * j * w
+        jac[..., 1, 0] -= i * i * w
+        jac[..., 1, 1] -= i * j * w
+    return jac
 
 
 def usv_closed_form(s: np.ndarray, p: dict[str, float], name: str, k: float):
@@ -449,3 +480,79 @@ def test_unknown_current_is_rejected() -> None:
         make_usv("hurricane")
     with pytest.raises(ValueError, match="n_agents"):
         make_flocking(1)
+
+
+# --------------------------------------------------------------------------- the random current field
+
+
+def _prefixed(p: dict[str, float]) -> dict[str, float]:
+    return {f"c_{k}": v for k, v in p.items()}
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_random_field_matches_the_formula(seed: int) -> None:
+    """value / jacobian == the lattice sum differentiated by hand, far from the origin too."""
+    field = CURRENTS["random"]
+    p = random_field_params(seed)
+    x, y = np.random.default_rng(700 + seed).uniform(-40, 40, (2, 300))
+    c1, c2 = current_numpy("random", x, y, _prefixed(p))
+    np.testing.assert_allclose(field.value(x, y, p), np.stack([c1, c2], axis=-1), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(field.jacobian(x, y, p), random_jacobian_numpy(x, y, _prefixed(p)), rtol=0,
+                               atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 5, 17, 123])
+def test_random_field_is_divergence_free_and_periodic(seed: int) -> None:
+    field = CURRENTS["random"]
+    p = random_field_params(seed)
+    x, y = np.random.default_rng(800 + seed).uniform(-30, 30, (2, 300))
+    jac = field.jacobian(x, y, p)
+    assert np.max(np.abs(jac[..., 0, 0] + jac[..., 1, 1])) < 1e-12
+    assert np.max(np.abs(jac)) > 0.1  # not trivially zero
+    v = field.value(x, y, p)
+    for dx, dy in ((RANDOM_PERIOD_M, 0.0), (0.0, RANDOM_PERIOD_M), (-2 * RANDOM_PERIOD_M, RANDOM_PERIOD_M)):
+        np.testing.assert_allclose(field.value(x + dx, y + dy, p), v, rtol=0, atol=1e-11)
+    # ... and not periodic with half the period
+    assert np.max(np.abs(field.value(x + RANDOM_PERIOD_M / 2, y, p) - v)) > 0.1
+
+
+@pytest.mark.parametrize("speed", [1.0, 2.5])
+def test_random_field_mean_square_speed(speed: float) -> None:
+    """E|C|^2 = speed^2, split evenly between the components (isotropic second moments)."""
+    field = CURRENTS["random"]
+    rng = np.random.default_rng(900)
+    c = np.concatenate([field.value(*rng.uniform(-50, 50, (2, 50)), random_field_params(rng, speed=speed))
+                        for _ in range(400)])
+    ms = np.mean(c**2, axis=0)
+    assert ms.sum() == pytest.approx(speed**2, rel=0.1)
+    np.testing.assert_allclose(ms, speed**2 / 2, rtol=0.15)
+
+
+def test_random_field_parameters_contract() -> None:
+    """Amplitudes are z * RANDOM_WEIGHTS with z standard normal in RANDOM_PARAM_NAMES order (the env relies on it)."""
+    field = CURRENTS["random"]
+    assert tuple(field.defaults) == RANDOM_PARAM_NAMES
+    assert field.defaults == random_field_params(0)
+    assert all(name.isidentifier() for name in RANDOM_PARAM_NAMES) and "a_1_m2" in RANDOM_PARAM_NAMES
+    assert RANDOM_WEIGHTS.shape == (len(RANDOM_PARAM_NAMES),) == (28,)
+    z = np.random.default_rng(42).standard_normal(len(RANDOM_PARAM_NAMES))
+    np.testing.assert_array_equal(list(random_field_params(np.random.default_rng(42)).values()), z * RANDOM_WEIGHTS)
+    np.testing.assert_array_equal(list(random_field_params(42).values()), z * RANDOM_WEIGHTS)
+    # E|C|^2 = sum_modes w^2 k0^2 |n|^2 = 1, and the spectrum peaks at wavelength 8 m (|n| = 2)
+    modes = [m for m, _, _ in random_modes_numpy({f"c_{k}": 0.0 for k in RANDOM_PARAM_NAMES})]
+    assert RANDOM_PARAM_NAMES == tuple(f"{ab}_{i}_{j}".replace("-", "m") for i, j in modes for ab in "ab")
+    n2 = np.array([i * i + j * j for i, j in modes])
+    energy = RANDOM_WEIGHTS[::2] ** 2 * RANDOM_K0_M**2 * n2
+    assert energy.sum() == pytest.approx(1.0, rel=1e-12)
+    assert n2[np.argmax(energy)] == 4
+    np.testing.assert_array_equal(RANDOM_WEIGHTS[::2], RANDOM_WEIGHTS[1::2])  # A and B alike: stationary
+
+
+def test_random_current_kernel_has_only_four_field_trig_calls() -> None:
+    """The lattice field needs sin/cos(k0 x) and sin/cos(k0 y) only (plus the heading's sin/cos)."""
+    src = Path(make_usv("random").kernels.__file__).read_text()
+    start = src.index("def _accel(")
+    end = src.find("\n@", start)
+    body = src[start:end if end > 0 else None]
+    calls = re.findall(r"math\.(?:sin|cos)\(([^()]*(?:\([^()]*\))?[^()]*)\)", body)
+    assert 0 < len(calls) <= 6, calls

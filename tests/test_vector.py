@@ -82,10 +82,9 @@ def test_vector_equals_sync_of_single_envs(case: tuple[str, dict], mode: Autores
 
 
 @pytest.mark.parametrize("env_id,scenario,length", [(FLOCK, "noisy", 255), (USV, "disturbance", 270)])
-def test_vector_equals_sync_past_the_noise_chunk(env_id: str, scenario: str, length: int) -> None:
-    """Episodes longer than the pre-drawn noise / impulse chunk (256 steps) refill it mid-episode;
-    with 255-step episodes the chunk runs out exactly in the (discarded) step of a sub-env that
-    NEXT_STEP-resets, which must not touch its generator."""
+def test_vector_equals_sync_over_long_random_episodes(env_id: str, scenario: str, length: int) -> None:
+    """Noise and impulses are drawn every step from each sub-env's stream; the (discarded) step
+    of a sub-env that NEXT_STEP-resets must draw nothing, or every later episode would differ."""
     vec = VECTOR_CLS[env_id](2, max_episode_steps=length, scenario=scenario)
     ref = _sync(env_id, 2, AutoresetMode.NEXT_STEP, max_episode_steps=length, scenario=scenario)
     _assert_same_run(vec, ref, steps=2 * length + 20, min_resets=2)
@@ -160,8 +159,7 @@ def test_bad_constructor_arguments(kwargs: dict, match: str) -> None:
 def _snapshot(env) -> dict:
     t = env.task
     return {"state": t.state.copy(), "obs32": t.obs32.copy(), "steps": t.steps.copy(), "force": t.force.copy(),
-            "action": t.action.copy(), "cursor": t._cursor.copy(), "autoreset": env._autoreset.copy(),
-            "rngs": [r.bit_generator.state for r in env.np_random]}
+            "action": t.action.copy(), "autoreset": env._autoreset.copy(), "rng": t.rng.copy()}
 
 
 @pytest.mark.parametrize("env_id", [FLOCK, USV])
@@ -225,6 +223,11 @@ def test_seeding_and_attributes() -> None:
     np.testing.assert_array_equal(obs1[2], single.reset(seed=7)[0])
     with pytest.raises(ValueError, match="length"):
         env.reset(seed=[1, 2])
+    for bad in (-1, [1, -2, 3], [1.5, None, None]):
+        with pytest.raises(gym.error.Error, match="Seed"):  # the single env's rule and message
+            env.reset(seed=bad)
+    with pytest.raises(gym.error.Error, match="Seed"):
+        single.reset(seed=-1)
     env.reset()  # seed None keeps the generators
     assert env.np_random_seed == (5, 11, 7)
     assert env.get_attr("scenario") == ("mismatch",) * 3

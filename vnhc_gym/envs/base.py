@@ -25,20 +25,22 @@ class ConstraintEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     task: ConstraintTask
     _bound: NDArray[np.float64]
     _renderer: Any = None
-    _rngs: list[np.random.Generator]
 
     def _check_render_mode(self, render_mode: str | None) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.render_mode = render_mode
         self._renderer = None
-        self._rngs = []
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[NDArray[np.float32], dict[str, Any]]:
-        super().reset(seed=seed)
-        self._rngs = [self.np_random]
-        self.task.reset_row(0, self.np_random)
+        super().reset(seed=seed)  # validates the seed, seeds np_random
+        if seed is not None:
+            self.task.seed_rows(np.zeros(1, dtype=np.intp), [seed])
+        elif not self.task._seeded[0]:
+            # Unseeded first reset: a stream from np_random (itself seeded from entropy).
+            self.task.seed_rows(np.zeros(1, dtype=np.intp), [int(self.np_random.integers(2**63))])
+        self.task.reset_row(0)
         if self.render_mode == "human":
             self.render()
         return self.task.obs32[0].copy(), self.task.info(0)
@@ -54,7 +56,7 @@ class ConstraintEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             a = a.astype(np.float64)
         if not apply_action(a, task.force, task.action, 0, self._bound):  # task.action = clip(a): charged by the cost
             raise ValueError(f"action must be finite, got {action!r}")
-        status = task.step(self._rngs)
+        status = task.step()
         if self.render_mode == "human":
             self.render()
         return task.obs32[0].copy(), float(task.reward[0]), bool(status[0]), False, task.info(0)

@@ -8,9 +8,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from numba import njit
+from numba import njit, prange
 from numpy.typing import NDArray
 
+from vnhc_gym.envs._random import sign, uniform_ab
 from vnhc_gym.envs.base import ConstraintEnv
 from vnhc_gym.envs.task import (
     STATUS_NONFINITE,
@@ -18,6 +19,8 @@ from vnhc_gym.envs.task import (
     ConstraintTask,
     TaskConfig,
     _is_real,
+    draw_mismatch,
+    finish_rows,
     reject_unknown,
     resolve_config,
 )
@@ -27,8 +30,6 @@ from vnhc_gym.systems.flocking import FLOCKING_PRESETS, make_flocking
 Array = NDArray[np.float64]
 __all__ = ["DEFAULT_FORCE_BOUND", "FlockingAlignEnv", "FlockingTask", "FlockingConfig", "LOG_SPEED_SCALE",
            "flocking_obs_dim"]
-
-_SIGNS = np.array([-1.0, 1.0])
 
 #: Default largest force (N): the geometric law with the baseline's gain k = 5 needs more than
 #: this at the start of under 0.5 % of nominal episodes (max over 500 seeds: 264 N).
@@ -43,20 +44,21 @@ def flocking_obs_dim(n_agents: int) -> int:
 
 
 @njit(cache=True)
-def _observe(S: np.ndarray, n_agents: int, clip: float, out: np.ndarray, flags: np.ndarray, status: np.ndarray) -> None:
-    nf = n_agents - 1
-    vx0 = 2 * n_agents
-    vz0 = 3 * n_agents
-    for r in range(S.shape[0]):
+def _observe_rows(start, stop, S, n_agents, clip, out, flags, status):
+    for r in range(start, stop):
+        nf = n_agents - 1
+        vx0 = 2 * n_agents
+        vz0 = 3 * n_agents
         status[r] = STATUS_NONFINITE if flags[r] & FLAG_NONFINITE else STATUS_OK
         lx = S[r, vx0 + nf]
         lz = S[r, vz0 + nf]
         speed = max(math.sqrt(lx * lx + lz * lz), 1e-12)
-        ex = lx / speed
-        ez = lz / speed
+        inv = 1.0 / speed
+        ex = lx * inv
+        ez = lz * inv
         for b in range(nf):
-            rx = S[r, vx0 + b] / speed
-            rz = S[r, vz0 + b] / speed
+            rx = S[r, vx0 + b] * inv
+            rz = S[r, vz0 + b] * inv
             out[r, 2 * b] = rx
             out[r, 2 * b + 1] = rz
             out[r, 2 * nf + 3 + b] = ex * rz - rx * ez  # phi_b / |v_N|^2
@@ -65,6 +67,71 @@ def _observe(S: np.ndarray, n_agents: int, clip: float, out: np.ndarray, flags: 
         out[r, 2 * nf + 2] = math.log(speed) / LOG_SPEED_SCALE
         for j in range(out.shape[1]):
             out[r, j] = min(max(out[r, j], -clip), clip)
+
+
+@njit(cache=True)
+def _observe(S, n_agents, clip, out, flags, status):
+    _observe_rows(0, S.shape[0], S, n_agents, clip, out, flags, status)
+
+
+@njit(cache=True)
+def _observe_at(rows, S, n_agents, clip, out, flags, status):
+    for i in range(rows.shape[0]):
+        _observe_rows(rows[i], rows[i] + 1, S, n_agents, clip, out, flags, status)
+
+
+@njit(cache=True)
+def _tail_rows(start, stop, oargs, fargs):
+    """Observe and finish rows ``start:stop`` (see ConstraintTask.tail)."""
+    S, n_agents, clip, out, flags, status = oargs
+    _observe_rows(start, stop, S, n_agents, clip, out, flags, status)
+    finish_rows(start, stop, *fargs)
+
+
+@njit(cache=True)
+def _tail(oargs, fargs):
+    _tail_rows(0, oargs[0].shape[0], oargs, fargs)
+
+
+@njit(cache=True, parallel=True)
+def _tail_parallel(oargs, fargs, n_chunks):
+    n = oargs[0].shape[0]
+    for c in prange(n_chunks):
+        _tail_rows(c * n // n_chunks, (c + 1) * n // n_chunks, oargs, fargs)
+
+
+@njit(cache=True)
+def _sample(rows, rng, preset_state, use_preset, n_agents, nominal, mismatch_mask, delta, S, PT, PN):
+    """New episodes for ``rows`` (state layout ``(x_1..x_N, z_1..z_N, xd_1..xd_N, zd_1..zd_N)``,
+    leader last), drawn from each row's stream in a fixed order."""
+    n = n_agents
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        if use_preset:
+            for j in range(4 * n):
+                S[r, j] = preset_state[j]
+        else:
+            # Leader: xd_N - zd_N in [1, 3] keeps C = diag((xd_N - zd_N)/m) away from singular for
+            # the whole episode (zd_N only decreases in free fall).
+            lx = uniform_ab(rng, r, 0.5, 2.0) * sign(rng, r)
+            lz = lx - uniform_ab(rng, r, 1.0, 3.0)
+            speed = math.hypot(lx, lz)
+            angle = math.atan2(lz, lx)
+            S[r, n - 1] = 0.0
+            S[r, 2 * n - 1] = 100.0
+            S[r, 3 * n - 1] = lx
+            S[r, 4 * n - 1] = lz
+            for b in range(n - 1):
+                # Followers: off the manifold by construction (angle offset 0.3..1.2 rad either way).
+                off = uniform_ab(rng, r, 0.3, 1.2) * sign(rng, r)
+                mag = speed * uniform_ab(rng, r, 0.5, 2.0)
+                S[r, 2 * n + b] = mag * math.cos(angle + off)
+                S[r, 3 * n + b] = mag * math.sin(angle + off)
+                S[r, b] = uniform_ab(rng, r, -20.0, 20.0)
+                S[r, n + b] = 100.0 + uniform_ab(rng, r, -20.0, 20.0)
+        for j in range(nominal.shape[0]):
+            PN[r, j] = nominal[j]
+        draw_mismatch(rng, r, nominal, mismatch_mask, delta, PT[r])
 
 
 class FlockingConfig(TaskConfig):
@@ -103,35 +170,23 @@ class FlockingTask(ConstraintTask):
         self._kick_mask[: self.n_agents - 1] = 1.0  # follower xd
         self._kick_mask[self.n_agents: 2 * self.n_agents - 1] = 1.0  # follower zd
         self._observe_args = (self.state, self.n_agents, config.obs_clip, self.obs, self.flags, self.status)
+        self._preset_state = FLOCKING_PRESETS[preset].state() if preset is not None else np.zeros(4 * self.n_agents)
 
-    def sample_episode(self, rng: np.random.Generator) -> tuple[Array, Array, Array]:
-        n = self.n_agents
-        if self.preset is not None:
-            state = FLOCKING_PRESETS[self.preset].state()
+    def sample_rows(self, rows: NDArray[np.intp]) -> None:
+        _sample(rows, self.rng, self._preset_state, self.preset is not None, self.n_agents, self.nominal,
+                self._mismatch_mask, self.config.param_mismatch, self.state, self.params_true, self.params_nominal)
+
+    def observe(self, rows: NDArray[np.intp] | None = None) -> None:
+        if rows is None:
+            _observe(*self._observe_args)
         else:
-            # Leader: xd_N - zd_N in [1, 3] keeps C = diag((xd_N - zd_N)/m) away from singular for
-            # the whole episode (zd_N only decreases in free fall).
-            # (-1.0, 1.0)[rng.integers(2)] draws exactly what rng.choice([-1.0, 1.0]) does, 10x cheaper.
-            lx = rng.uniform(0.5, 2.0) * (-1.0, 1.0)[rng.integers(2)]
-            lz = lx - rng.uniform(1.0, 3.0)
-            speed = math.hypot(lx, lz)
-            angle = math.atan2(lz, lx)
-            # Followers: off the manifold by construction (angle offset 0.3..1.2 rad either way).
-            offs = rng.uniform(0.3, 1.2, size=n - 1) * _SIGNS[rng.integers(2, size=n - 1)]
-            mags = speed * rng.uniform(0.5, 2.0, size=n - 1)
-            vel = np.empty((n, 2))
-            vel[:-1, 0] = mags * np.cos(angle + offs)
-            vel[:-1, 1] = mags * np.sin(angle + offs)
-            vel[-1] = (lx, lz)
-            pos = np.empty((n, 2))
-            pos[-1] = (0.0, 100.0)
-            pos[:-1] = pos[-1] + rng.uniform(-20.0, 20.0, size=(n - 1, 2))
-            state = np.concatenate([pos[:, 0], pos[:, 1], vel[:, 0], vel[:, 1]])
-        p_true = self.mismatch(rng, self.nominal, self._mismatch_mask)
-        return state, p_true, self.nominal.copy()
+            _observe_at(rows, *self._observe_args)
 
-    def observe(self) -> None:
-        _observe(*self._observe_args)
+    def tail(self, finish_args: tuple[Any, ...], threaded: bool) -> None:
+        if threaded:
+            _tail_parallel(self._observe_args, finish_args, 2)
+        else:
+            _tail(self._observe_args, finish_args)
 
     def impulse_mask(self) -> NDArray[np.float64]:
         return self._kick_mask

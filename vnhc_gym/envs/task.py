@@ -4,27 +4,29 @@ A :class:`ConstraintTask` holds ``B`` independent episodes of one system as floa
 and advances them all with one compiled RK4 call.  ``FlockingAlignEnv`` and ``USVStreamEnv``
 use a task with ``B = 1``; the vector environments use the same task with ``B = num_envs``, so
 both run the same dynamics, observation, reward and termination code (no CartPole-style
-duplication).  Randomness comes from one ``numpy.random.Generator`` per row (the env's
-``np_random``), so a vector env reproduces ``N`` single envs seeded alike, bit for bit.
+duplication).  Randomness comes from one SplitMix64 stream per row, drawn inside the compiled
+kernels (:mod:`vnhc_gym.envs._random`), so a vector env reproduces ``N`` single envs seeded
+alike, bit for bit, and resetting many rows costs one kernel call.
 """
 
 from __future__ import annotations
 
 import numbers
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from time import perf_counter
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from vnhc_gym.envs._random import entropy_states, normal_pair, seed_states, uniform
 from vnhc_gym.mechanics import FEEDBACK_MODES, ConstrainedSystem
 
-__all__ = ["TaskConfig", "ConstraintTask", "apply_action", "check_action", "reject_unknown", "resolve_config",
-           "SCENARIOS"]
+__all__ = ["TaskConfig", "ConstraintTask", "apply_action", "check_action", "draw_mismatch", "finish_rows",
+           "reject_unknown", "resolve_config", "SCENARIOS"]
 
 Array = NDArray[np.float64]
 
@@ -207,31 +209,55 @@ def _start_thread_pool() -> None:
 
 
 @njit(cache=True)
-def _fill_kicks(dv, kick_u, kick_v, cursor, prob):
+def _fill_kicks(dv, rng, skip, prob, scale, mask):
+    """Velocity impulses: with probability ``prob`` per row, ``scale * N(0, 1) * mask``."""
+    n = dv.shape[1]
     for r in range(dv.shape[0]):
-        c = cursor[r]
-        hit = kick_u[r, c] < prob
-        for j in range(dv.shape[1]):
-            dv[r, j] = kick_v[r, c, j] if hit else 0.0
+        for j in range(n):
+            dv[r, j] = 0.0
+        if skip[r] or not uniform(rng, r) < prob:
+            continue
+        for j in range(0, n, 2):
+            z0, z1 = normal_pair(rng, r)
+            dv[r, j] = scale * z0 * mask[j]
+            if j + 1 < n:
+                dv[r, j + 1] = scale * z1 * mask[j + 1]
+
+
+@njit(cache=True, inline="always")
+def draw_mismatch(rng, r, nominal, mask, delta, out):
+    """``out = nominal``, times ``U(1 - delta, 1 + delta)`` where ``mask`` (one draw per masked
+    entry, from row ``r``'s stream; none if ``delta == 0``)."""
+    for j in range(nominal.shape[0]):
+        out[j] = nominal[j]
+        if delta > 0 and mask[j]:
+            out[j] = nominal[j] * (1.0 + delta * (2.0 * uniform(rng, r) - 1.0))
 
 
 @njit(cache=True)
-def _finish(obs, noise, cursor, use_cursor, add_noise, clip, phi, action, status, phi_scale, action_cost, reward_clip,
-            reward, abs_phi, steps, obs32, chunk):
-    """Noise, reward, step counters and the float32 copy of the observations; returns the number
-    of rows whose pre-drawn noise is used up."""
+def _add_noise(obs, rng, r, sigma, clip):
+    """``obs[r] = clip(obs[r] + N(0, sigma^2))`` entry-wise, from row ``r``'s stream."""
+    d = obs.shape[1]
+    for j in range(0, d, 2):
+        z0, z1 = normal_pair(rng, r)
+        obs[r, j] = min(max(obs[r, j] + sigma * z0, -clip), clip)
+        if j + 1 < d:
+            obs[r, j + 1] = min(max(obs[r, j + 1] + sigma * z1, -clip), clip)
+
+
+@njit(cache=True)
+def finish_rows(start, stop, obs, rng, skip, sigma, clip, phi, action, status, phi_scale, action_cost, reward_clip,
+                reward, abs_phi, steps, obs32):
+    """After ``observe`` of rows ``start:stop``: observation noise (not for ``skip``-ped rows,
+    whose step is discarded), reward, step counter and the float32 copy of the observation.
+    Called once per row block by each environment's fused observe-and-finish kernels (``_tail``,
+    ``_tail_parallel``).  A loop over rows, not a per-row function: per-row calls, even inlined
+    ones, made this pass about 6x slower."""
     m = phi.shape[1]
-    exhausted = 0
-    for r in range(phi.shape[0]):
+    for r in range(start, stop):
         steps[r] += 1
-        if use_cursor:
-            c = cursor[r] + 1
-            cursor[r] = c
-            if c >= chunk:
-                exhausted += 1
-            elif add_noise:
-                for j in range(obs.shape[1]):
-                    obs[r, j] = min(max(obs[r, j] + noise[r, c, j], -clip), clip)
+        if sigma > 0 and not skip[r]:
+            _add_noise(obs, rng, r, sigma, clip)
         acc = 0.0
         for b in range(m):
             acc += abs(phi[r, b])
@@ -247,7 +273,28 @@ def _finish(obs, noise, cursor, use_cursor, add_noise, clip, phi, action, status
         reward[r] = min(max(rew, -reward_clip), 0.0)
         for j in range(obs.shape[1]):
             obs32[r, j] = obs[r, j]
-    return exhausted
+
+
+@njit(cache=True)
+def _start_rows(rows, obs, rng, sigma, clip, phi, status, abs_phi, obs32, steps, force, force_applied, action, flags):
+    """Per-row bookkeeping of a reset, after ``observe``: status OK, ``|phi|``, noise, obs32."""
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        status[r] = STATUS_OK
+        steps[r] = 0
+        flags[r] = 0
+        for b in range(force.shape[1]):
+            force[r, b] = 0.0
+            force_applied[r, b] = 0.0
+            action[r, b] = 0.0
+        acc = 0.0
+        for b in range(phi.shape[1]):
+            acc += abs(phi[r, b])
+        abs_phi[r] = acc / phi.shape[1]
+        if sigma > 0:
+            _add_noise(obs, rng, r, sigma, clip)
+        for j in range(obs.shape[1]):
+            obs32[r, j] = obs[r, j]
 
 
 @njit(cache=True)
@@ -274,7 +321,6 @@ class ConstraintTask:
     """
 
     obs_dim: int
-    noise_chunk: ClassVar[int] = 256
 
     def __init__(self, model: ConstrainedSystem, config: TaskConfig, force_bound: Array, n: int,
                  default_impulse: float) -> None:
@@ -323,26 +369,20 @@ class ConstraintTask:
         self._hi = self.force_bound.copy()
         assert n_p == self.params_true.shape[1]
         self.impulse_scale = config.impulse_scale if config.impulse_scale is not None else default_impulse
-        self._noisy = config.obs_noise > 0
-        self._kicks = config.impulse_prob > 0
-        # Pre-drawn per-row noise, consumed one entry per step: a row's random stream depends
-        # only on its own generator, so vector and single envs agree exactly.
-        self._noise = np.zeros((n, self.noise_chunk, self.obs_dim)) if self._noisy else np.zeros((n, 1, 1))
-        self._kick_u = np.ones((n, self.noise_chunk)) if self._kicks else None
-        self._kick_v = np.zeros((n, self.noise_chunk, model.n)) if self._kicks else None
-        self._cursor = np.zeros(n, dtype=np.int64)
+        #: Per-row SplitMix64 states (see vnhc_gym.envs._random); seeded by seed_rows.
+        self.rng = np.zeros(n, dtype=np.uint64)
+        self._seeded = np.zeros(n, dtype=np.bool_)
+        self._no_skip = np.zeros(n, dtype=np.bool_)
         # Every buffer above is only ever written in place, so the kernels' argument tuples are
         # built once (attribute look-ups cost as much as the physics at batch 1).
         cfg = config
         self._advance_args = (self.state, self.params_true, self.force, self._gains, 0, self._lo, self._hi, cfg.dt,
                               cfg.substeps, model.singular_tol, self.next_state, self.force_applied, self.flags,
                               self.dv, self.phi, self.params_nominal, self.aux, *self._extra)
-        self._finish_args = (self.obs, self._noise, self._cursor, self._noisy or self._kicks, self._noisy,
-                             cfg.obs_clip, self.phi, self.action, self.status, cfg.phi_scale, cfg.action_cost,
-                             cfg.reward_clip, self.reward, self.abs_phi, self.steps, self.obs32, self.noise_chunk)
+        self._finish_tail = (cfg.obs_noise, cfg.obs_clip, self.phi, self.action, self.status, cfg.phi_scale,
+                             cfg.action_cost, cfg.reward_clip, self.reward, self.abs_phi, self.steps, self.obs32)
         self.feedback = "open"
-        self._kick_args = None if self._kick_u is None else (self.dv, self._kick_u, self._kick_v, self._cursor,
-                                                               cfg.impulse_prob)
+        self._kicks = config.impulse_prob > 0
 
     def __getstate__(self) -> dict[str, Any]:
         # Compiled kernels are module functions of a generated module: re-bound on unpickle.
@@ -375,12 +415,19 @@ class ConstraintTask:
         self.feedback = feedback
 
     # ------------------------------------------------------------------ hooks
-    def sample_episode(self, rng: np.random.Generator) -> tuple[Array, Array, Array]:
-        """``(state, params_true, params_nominal)`` of one new episode."""
+    def sample_rows(self, rows: NDArray[np.intp]) -> None:
+        """Draw new episodes for ``rows`` from their streams (``self.rng``): write
+        ``self.state[rows]``, ``self.params_true[rows]`` and ``self.params_nominal[rows]``."""
         raise NotImplementedError
 
-    def observe(self) -> None:
-        """Fill ``self.obs`` (clipped float64) and ``self.status`` from ``self.flags`` for all rows."""
+    def observe(self, rows: NDArray[np.intp] | None = None) -> None:
+        """Fill ``self.obs`` (clipped float64) and ``self.status`` from ``self.flags`` for ``rows``
+        (default all)."""
+        raise NotImplementedError
+
+    def tail(self, finish_args: tuple[Any, ...], threaded: bool) -> None:
+        """:meth:`observe` then :func:`finish_rows` for every row, fused in one compiled loop
+        (on numba's thread pool if ``threaded``)."""
         raise NotImplementedError
 
     def impulse_mask(self) -> Array:
@@ -388,117 +435,65 @@ class ConstraintTask:
         raise NotImplementedError
 
     # ------------------------------------------------------------------ shared logic
-    def mismatch(self, rng: np.random.Generator, nominal: Array, which: NDArray[np.bool_]) -> Array:
-        """True parameters: nominal times ``U(1 - delta, 1 + delta)`` where ``which`` is True."""
-        delta = self.config.param_mismatch
-        if delta == 0:
-            return nominal.copy()
-        factor = 1.0 + delta * rng.uniform(-1.0, 1.0, size=nominal.shape)
-        return np.where(which, nominal * factor, nominal)
+    def seed_rows(self, rows: NDArray[np.intp], seeds: Sequence[int | None]) -> None:
+        """Seed the streams of ``rows``: ``seeds[k]`` for ``rows[k]`` (a non-negative int), or
+        ``None`` to keep the row's stream (fresh operating-system entropy if never seeded)."""
+        rows = np.asarray(rows, dtype=np.intp)
+        given = np.array([s is not None for s in seeds], dtype=np.bool_)
+        if given.any():
+            self.rng[rows[given]] = seed_states([s for s in seeds if s is not None])
+        fresh = rows[~given & ~self._seeded[rows]]
+        if fresh.size:
+            self.rng[fresh] = entropy_states(fresh.size)
+        self._seeded[rows] = True
 
-    def _refill(self, i: int, rng: np.random.Generator) -> None:
-        if self._noisy:
-            self._noise[i] = rng.normal(0.0, self.config.obs_noise, size=self._noise.shape[1:])
-        if self._kick_u is not None and self._kick_v is not None:
-            self._kick_u[i] = rng.uniform(size=self.noise_chunk)
-            self._kick_v[i] = rng.normal(0.0, self.impulse_scale, size=self._kick_v.shape[1:]) * self.impulse_mask()
-        self._cursor[i] = 0
+    def reset_row(self, i: int) -> None:
+        """Start a new episode in row ``i`` (see :meth:`reset_rows`)."""
+        self.reset_rows(np.array([i], dtype=np.intp))
 
-    def reset_row(self, i: int, rng: np.random.Generator) -> None:
-        """Start a new episode in row ``i`` from ``rng`` and refresh row ``i``'s outputs."""
-        state, p_true, p_nom = self.sample_episode(rng)
-        self.state[i] = state
-        self.params_true[i] = p_true
-        self.params_nominal[i] = p_nom
-        self.steps[i] = 0
-        self.force[i] = 0.0
-        self.force_applied[i] = 0.0
-        self.action[i] = 0.0
-        self.flags[i] = 0
-        if self._noisy or self._kicks:
-            self._refill(i, rng)
-        rows = slice(i, i + 1)
-        self.k.phi(self.state[rows], self.params_true[rows], self.phi[rows])
-        self.k.aux(self.state[rows], self.params_nominal[rows], self.aux[rows])
-        self.abs_phi[i] = np.abs(self.phi[i]).mean()
-        self.observe()
-        self.status[i] = STATUS_OK
-        if self._noisy:
-            self.obs[i] = np.clip(self.obs[i] + self._noise[i, 0], -self.config.obs_clip, self.config.obs_clip)
-        self.obs32[i] = self.obs[i]
+    def reset_rows(self, rows: NDArray[np.intp]) -> None:
+        """Start new episodes in ``rows``, each drawn from its own stream, and refresh their outputs.
 
-    def reset_rows(self, rows: NDArray[np.intp], rngs: list[np.random.Generator]) -> None:
-        """:meth:`reset_row` for several rows at once (row ``i`` draws from ``rngs[i]``).
-
-        Every row gets exactly what ``reset_row(i, rngs[i])`` would give it (same draws in the
-        same order, same arithmetic); only the per-row Python work is left in the loop, and the
-        kernels and the observation run once for all of ``rows``.  Other rows keep their float32
-        observations (``obs32``) and statuses.
+        Other rows keep their float32 observations (``obs32``) and statuses.  Rows never seeded
+        get an entropy seed first.
         """
         rows = np.asarray(rows, dtype=np.intp)
         if rows.size == 0:
             return
-        if rows.size == 1:
-            self.reset_row(int(rows[0]), rngs[int(rows[0])])
-            return
-        refill = self._noisy or self._kicks
-        states, trues, noms = [], [], []
-        for i in rows.tolist():
-            rng = rngs[i]
-            state, p_true, p_nom = self.sample_episode(rng)
-            states.append(state)
-            trues.append(p_true)
-            noms.append(p_nom)
-            if refill:
-                self._refill(i, rng)
-        state = np.array(states, dtype=np.float64)
-        p_true = np.array(trues, dtype=np.float64)
-        p_nom = np.array(noms, dtype=np.float64)
-        self.state[rows] = state
-        self.params_true[rows] = p_true
-        self.params_nominal[rows] = p_nom
-        self.steps[rows] = 0
-        self.force[rows] = 0.0
-        self.force_applied[rows] = 0.0
-        self.action[rows] = 0.0
+        if not self._seeded[rows].all():
+            self.seed_rows(rows, [None] * rows.size)
+        self.sample_rows(rows)
         self.flags[rows] = 0
+        state, p_true, p_nom = self.state[rows], self.params_true[rows], self.params_nominal[rows]
         phi = np.empty((rows.size, self.phi.shape[1]))
         aux = np.empty((rows.size, self.aux.shape[1]))
         self.k.phi(state, p_true, phi)
         self.k.aux(state, p_nom, aux)
         self.phi[rows] = phi
         self.aux[rows] = aux
-        self.abs_phi[rows] = np.abs(phi).mean(axis=1)
-        self.observe()
-        self.status[rows] = STATUS_OK
-        obs = self.obs[rows]
-        if self._noisy:
-            obs = np.clip(obs + self._noise[rows, 0], -self.config.obs_clip, self.config.obs_clip)
-            self.obs[rows] = obs
-        self.obs32[rows] = obs
+        self.observe(rows)
+        cfg = self.config
+        _start_rows(rows, self.obs, self.rng, cfg.obs_noise, cfg.obs_clip, self.phi, self.status, self.abs_phi,
+                    self.obs32, self.steps, self.force, self.force_applied, self.action, self.flags)
 
-    def step(self, rngs: list[np.random.Generator]) -> NDArray[np.int64]:
+    def step(self, skip: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
         """Advance every row one control period with the forces in ``self.force``.
 
-        Returns the per-row status (``STATUS_OK``, ``STATUS_NONFINITE``, ``STATUS_INVALID``).
-        Rows whose state became non-finite keep their last finite state and observation; the
-        non-finite state is left in ``self.next_state``.
+        ``skip`` marks rows whose step will be discarded (a vector env's sub-envs that are reset
+        right after, in ``NEXT_STEP`` mode): they draw no noise or impulses, so their streams
+        stay where a single env's would be.  Returns the per-row status (``STATUS_OK``,
+        ``STATUS_NONFINITE``, ``STATUS_INVALID``, ...).  Rows whose state became non-finite keep
+        their last finite state and observation; the non-finite state is left in
+        ``self.next_state``.
         """
-        if self._kick_args is not None:
-            _fill_kicks(*self._kick_args)
+        sk = self._no_skip if skip is None else skip
+        if self._kicks:
+            _fill_kicks(self.dv, self.rng, sk, self.config.impulse_prob, self.impulse_scale, self.impulse_mask())
         if self._timed:
             self._advance_timed()
         else:
             self._advance(*self._advance_args)
-        self.observe()
-        exhausted = _finish(*self._finish_args)
-        if exhausted:
-            cfg = self.config
-            for i in np.flatnonzero(self._cursor >= self.noise_chunk):
-                self._refill(int(i), rngs[i])
-                if self._noisy:
-                    self.obs[i] = np.clip(self.obs[i] + self._noise[i, 0], -cfg.obs_clip, cfg.obs_clip)
-                    self.obs32[i] = self.obs[i]
+        self.tail((self.obs, self.rng, sk, *self._finish_tail), self._timed and self._threaded)
         return self.status
 
     def _advance_timed(self) -> None:

@@ -8,9 +8,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from numba import njit
+from numba import njit, prange
 from numpy.typing import NDArray
 
+from vnhc_gym.envs._random import normal_pair, sign, uniform_ab
 from vnhc_gym.envs.base import ConstraintEnv
 from vnhc_gym.envs.task import (
     STATUS_INVALID,
@@ -20,11 +21,13 @@ from vnhc_gym.envs.task import (
     ConstraintTask,
     TaskConfig,
     _is_real,
+    draw_mismatch,
+    finish_rows,
     reject_unknown,
     resolve_config,
 )
 from vnhc_gym.mechanics import FLAG_NONFINITE
-from vnhc_gym.systems.currents import CURRENTS, get_current, random_field_params
+from vnhc_gym.systems.currents import CURRENTS, RANDOM_PARAM_NAMES, RANDOM_WEIGHTS, get_current
 from vnhc_gym.systems.usv import USV_PRESETS, make_usv
 
 Array = NDArray[np.float64]
@@ -39,9 +42,8 @@ RATE_SCALE = 2.0  #: rad/s: the turn rate is divided by this
 
 
 @njit(cache=True)
-def _observe(S: np.ndarray, aux: np.ndarray, domain: float, max_rate: float, clip: float, out: np.ndarray,
-             flags: np.ndarray, status: np.ndarray) -> None:
-    for r in range(S.shape[0]):
+def _observe_rows(start, stop, S, aux, domain, max_rate, clip, out, flags, status):
+    for r in range(start, stop):
         if flags[r] & FLAG_NONFINITE:
             status[r] = STATUS_NONFINITE
         elif abs(S[r, 0]) > domain or abs(S[r, 1]) > domain:
@@ -71,6 +73,84 @@ def _observe(S: np.ndarray, aux: np.ndarray, domain: float, max_rate: float, cli
             out[r, 10 + j] = aux[r, 2 + j]  # nominal dC1/dx, dC1/dy, dC2/dx, dC2/dy (1/s)
         for j in range(out.shape[1]):
             out[r, j] = min(max(out[r, j], -clip), clip)
+
+
+@njit(cache=True)
+def _observe(S, aux, domain, max_rate, clip, out, flags, status):
+    _observe_rows(0, S.shape[0], S, aux, domain, max_rate, clip, out, flags, status)
+
+
+@njit(cache=True)
+def _observe_at(rows, S, aux, domain, max_rate, clip, out, flags, status):
+    for i in range(rows.shape[0]):
+        _observe_rows(rows[i], rows[i] + 1, S, aux, domain, max_rate, clip, out, flags, status)
+
+
+@njit(cache=True)
+def _tail_rows(start, stop, oargs, fargs):
+    """Observe and finish rows ``start:stop`` (see ConstraintTask.tail)."""
+    S, aux, domain, max_rate, clip, out, flags, status = oargs
+    _observe_rows(start, stop, S, aux, domain, max_rate, clip, out, flags, status)
+    finish_rows(start, stop, *fargs)
+
+
+@njit(cache=True)
+def _tail(oargs, fargs):
+    _tail_rows(0, oargs[0].shape[0], oargs, fargs)
+
+
+@njit(cache=True, parallel=True)
+def _tail_parallel(oargs, fargs, n_chunks):
+    n = oargs[0].shape[0]
+    for c in prange(n_chunks):
+        _tail_rows(c * n // n_chunks, (c + 1) * n // n_chunks, oargs, fargs)
+
+
+@njit(cache=True)
+def _sample_params(rows, rng, nominal, amp_idx, amp_w, mismatch_mask, delta, preset_state, use_preset, S, PT, PN):
+    """First half of a new episode for ``rows``: nominal parameters (random current amplitudes),
+    true parameters (mismatch) and the start pose (preset state if ``use_preset``)."""
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        for j in range(nominal.shape[0]):
+            PN[r, j] = nominal[j]
+        for k in range(0, amp_idx.shape[0], 2):
+            z0, z1 = normal_pair(rng, r)
+            PN[r, amp_idx[k]] = amp_w[k] * z0
+            if k + 1 < amp_idx.shape[0]:
+                PN[r, amp_idx[k + 1]] = amp_w[k + 1] * z1
+        draw_mismatch(rng, r, PN[r], mismatch_mask, delta, PT[r])
+        if use_preset:
+            for j in range(6):
+                S[r, j] = preset_state[j]
+        else:
+            S[r, 0] = uniform_ab(rng, r, -5.0, 5.0)
+            S[r, 1] = uniform_ab(rng, r, -5.0, 5.0)
+            S[r, 2] = uniform_ab(rng, r, -math.pi, math.pi)
+            S[r, 3] = 0.0
+            S[r, 4] = 0.0
+            S[r, 5] = 0.0
+
+
+@njit(cache=True)
+def _sample_velocity(rows, rng, current, S):
+    """Second half: the start velocity, from the true current ``current[i] = (C1, C2, ...)`` at
+    the start position of ``rows[i]``."""
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        th = S[r, 2]
+        c = math.cos(th)
+        s = math.sin(th)
+        c1 = current[i, 0]
+        c2 = current[i, 1]
+        # Forward through the water, and at least 0.3 m/s forward over ground along the heading:
+        # on the manifold I thetadd = -m thetad v_forward, unstable when the boat goes backwards.
+        forward = max(uniform_ab(rng, r, 0.5, 1.5), 0.3 - (c1 * c + c2 * s))
+        phi0 = uniform_ab(rng, r, 0.2, 1.0) * sign(rng, r)  # off the manifold by construction
+        # Velocity = current + forward speed along the heading + phi0 across it (mu = (sin, -cos)).
+        S[r, 3] = c1 + forward * c + phi0 * s
+        S[r, 4] = c2 + forward * s - phi0 * c
+        S[r, 5] = uniform_ab(rng, r, -0.5, 0.5)
 
 
 class USVTask(ConstraintTask):
@@ -114,31 +194,22 @@ class USVTask(ConstraintTask):
         self._kick_mask = np.array([1.0, 1.0, 0.0])
         self._observe_args = (self.state, self.aux, self.domain, self.max_turn_rate, config.obs_clip, self.obs,
                               self.flags, self.status)
+        # A random current draws its amplitudes c_<name> = RANDOM_WEIGHTS * N(0, 1) per episode.
+        self._amp_idx = np.array([] if self.fixed_field else [names.index(f"c_{k}") for k in RANDOM_PARAM_NAMES],
+                                 dtype=np.intp)
+        self._amp_w = np.asarray([] if self.fixed_field else RANDOM_WEIGHTS, dtype=np.float64)
+        self._preset_state = USV_PRESETS[preset].state() if preset is not None else np.zeros(6)
 
-    def sample_episode(self, rng: np.random.Generator) -> tuple[Array, Array, Array]:
-        nominal = self.nominal.copy()
-        if not self.fixed_field:
-            for k, v in random_field_params(rng).items():
-                nominal[self._cidx[k]] = v
-        p_true = self.mismatch(rng, nominal, self._mismatch_mask)
-        if self.preset is not None:
-            return USV_PRESETS[self.preset].state(), p_true, nominal
-        x, y = rng.uniform(-5.0, 5.0, size=2)
-        th = rng.uniform(-math.pi, math.pi)
-        aux = np.empty((1, len(self.model.output_names)))
-        self.k.aux(np.array([[x, y, th, 0.0, 0.0, 0.0]]), p_true[None, :], aux)
-        # Forward through the water, and at least 0.3 m/s forward over ground along the heading:
-        # on the manifold I thetadd = -m thetad v_forward, unstable when the boat goes backwards.
-        forward = rng.uniform(0.5, 1.5)
-        forward = max(forward, 0.3 - (aux[0, 0] * math.cos(th) + aux[0, 1] * math.sin(th)))
-        # off the manifold by construction; (-1.0, 1.0)[rng.integers(2)] draws exactly what rng.choice([-1.0, 1.0])
-        # does, 10x cheaper
-        phi0 = rng.uniform(0.2, 1.0) * (-1.0, 1.0)[rng.integers(2)]
-        # Velocity = current + forward speed along the heading + phi0 across it (mu = (sin, -cos)).
-        xd = aux[0, 0] + forward * math.cos(th) + phi0 * math.sin(th)
-        yd = aux[0, 1] + forward * math.sin(th) - phi0 * math.cos(th)
-        thd = rng.uniform(-0.5, 0.5)
-        return np.array([x, y, th, xd, yd, thd]), p_true, nominal
+    def sample_rows(self, rows: NDArray[np.intp]) -> None:
+        cfg = self.config
+        _sample_params(rows, self.rng, self.nominal, self._amp_idx, self._amp_w, self._mismatch_mask,
+                       cfg.param_mismatch, self._preset_state, self.preset is not None, self.state,
+                       self.params_true, self.params_nominal)
+        if self.preset is None:
+            # The start velocity depends on the true current at the start position.
+            aux = np.empty((rows.size, self.aux.shape[1]))
+            self.k.aux(self.state[rows], self.params_true[rows], aux)
+            _sample_velocity(rows, self.rng, aux, self.state)
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
@@ -149,9 +220,18 @@ class USVTask(ConstraintTask):
         super().__setstate__(state)
         self.field = get_current(self.current)
 
-    def observe(self) -> None:
+    def observe(self, rows: NDArray[np.intp] | None = None) -> None:
         # self.aux holds the *nominal* current map at the boat (what the controller is told).
-        _observe(*self._observe_args)
+        if rows is None:
+            _observe(*self._observe_args)
+        else:
+            _observe_at(rows, *self._observe_args)
+
+    def tail(self, finish_args: tuple[Any, ...], threaded: bool) -> None:
+        if threaded:
+            _tail_parallel(self._observe_args, finish_args, 2)
+        else:
+            _tail(self._observe_args, finish_args)
 
     def impulse_mask(self) -> NDArray[np.float64]:
         return self._kick_mask

@@ -12,9 +12,9 @@ truncations and infos (Gymnasium's dict-of-arrays convention with ``_key`` masks
 ``reset(options={"reset_mask": mask})``).  ``reset(seed=s)`` seeds sub-env ``i`` with ``s + i``
 like ``SyncVectorEnv`` does.
 
-A step costs a constant number of numpy / numba calls whatever ``num_envs`` is; only
-sub-environments that actually start a new episode run Python code (drawing their episode from
-their own generator, as the single env does).
+A step costs a constant number of numpy / numba calls whatever ``num_envs`` is, resets
+included: every sub-environment draws its episodes from its own SplitMix64 stream inside the
+compiled kernels (:mod:`vnhc_gym.envs._random`), seeded like the single env's.
 """
 
 from __future__ import annotations
@@ -24,8 +24,7 @@ from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.error import ResetNeeded
-from gymnasium.utils import seeding
+from gymnasium.error import Error, ResetNeeded
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numba import njit
@@ -84,6 +83,14 @@ def step_outcome(status: np.ndarray, steps: np.ndarray, max_steps: int, terminat
         if term or trunc:
             n_ended += 1
     return n_ended
+
+
+def _check_seed(seed: Any) -> None:
+    """The single env's seed rule (``gymnasium.utils.seeding.np_random``): an int >= 0."""
+    if not isinstance(seed, int):
+        raise Error(f"Seed must be a python integer, actual type: {type(seed)}")
+    if seed < 0:
+        raise Error(f"Seed must be greater or equal to zero, actual value: {seed}")
 
 
 class _RowView:
@@ -174,7 +181,6 @@ class ConstraintVectorEnv(VectorEnv):
         self._act_shape = (n, *self.single_action_space.shape)  # type: ignore[misc]
         self._bound = self.task.force_bound
         self._dt = self.task.config.dt
-        self._rngs: list[np.random.Generator] | None = None
         self._unreset = np.ones(n, dtype=np.bool_)  # sub-envs never reset yet (stepping them is an error)
         self._ready = False
         self._seeds: list[int | None] = [None] * n
@@ -183,26 +189,29 @@ class ConstraintVectorEnv(VectorEnv):
         self._max_steps = 0 if max_episode_steps is None else int(max_episode_steps)
         self._true = np.ones(n, dtype=np.bool_)
         self._no_skip = np.zeros(n, dtype=np.bool_)
-        self._spare_rng = np.random.default_rng(0)  # absorbs draws of rows that are about to be reset
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
               ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         """Reset all sub-environments (or those in ``options["reset_mask"]``).
 
-        ``seed``: None (keep each sub-env's generator; random on first use), an int ``s``
+        ``seed``: None (keep each sub-env's random stream; entropy on first use), an int ``s``
         (sub-env ``i`` gets ``s + i``) or a list of ``num_envs`` ints / None.
         """
         n = self.num_envs
         if seed is None:
             seeds: list[int | None] = [None] * n
         elif isinstance(seed, int | np.integer) and not isinstance(seed, bool):
+            _check_seed(int(seed))
             seeds = [int(seed) + i for i in range(n)]
         else:
             seeds = list(seed)  # type: ignore[arg-type]
             if len(seeds) != n:
                 raise ValueError(f"If seeds are passed as a list the length must match num_envs={n} "
                                  f"but got length={len(seeds)}.")
+            for s in seeds:
+                if s is not None:
+                    _check_seed(s)
         mask = None
         if options is not None and "reset_mask" in options:
             mask = options["reset_mask"]
@@ -216,14 +225,12 @@ class ConstraintVectorEnv(VectorEnv):
                 raise ValueError(f"`options['reset_mask']` must contain a boolean array with at least one True "
                                  f"value, got reset_mask={mask}")
         rows = np.arange(n) if mask is None else np.flatnonzero(mask)
-        if self._rngs is None:
-            self._rngs = [None] * n  # type: ignore[list-item]
-        rngs = self._rngs
-        for i in rows.tolist():
-            s = seeds[i]
-            if s is not None or rngs[i] is None:
-                rngs[i], self._seeds[i] = seeding.np_random(s)
-        self.task.reset_rows(rows, rngs)
+        row_seeds = [seeds[i] for i in rows.tolist()]
+        for i, s in zip(rows.tolist(), row_seeds, strict=True):
+            if s is not None or not self.task._seeded[i]:
+                self._seeds[i] = s
+        self.task.seed_rows(rows, row_seeds)
+        self.task.reset_rows(rows)
         self._autoreset[rows] = False
         self._n_pending = int(np.count_nonzero(self._autoreset))
         self._unreset[rows] = False
@@ -259,16 +266,12 @@ class ConstraintVectorEnv(VectorEnv):
         bad = accept_actions(a, pending if next_step else self._no_skip, self._bound, task.force, task.action)
         if bad >= 0:
             raise ValueError(f"actions must be finite, got row {bad}: {a[bad]!r}")
-        rngs = self._rngs
-        if rngs is None:
-            raise RuntimeError("call reset() before step()")
-        all_rngs = rngs
         if next_step:
             rows = np.flatnonzero(pending)
-            rngs = list(rngs)
-            for i in rows.tolist():
-                rngs[i] = self._spare_rng  # these rows are only reset this step (their step is discarded)
-        status = task.step(rngs)
+            # These rows are only reset this step (their step is discarded): they draw nothing.
+            status = task.step(pending)
+        else:
+            status = task.step()
         n = self.num_envs
         terminated = np.empty(n, dtype=np.bool_)
         truncated = np.empty(n, dtype=np.bool_)
@@ -276,7 +279,7 @@ class ConstraintVectorEnv(VectorEnv):
         reward = task.reward.copy()
         final: dict[str, Any] | None = None
         if next_step:
-            task.reset_rows(rows, all_rngs)
+            task.reset_rows(rows)
             terminated[rows] = False
             truncated[rows] = False
             pending[rows] = False
@@ -290,7 +293,7 @@ class ConstraintVectorEnv(VectorEnv):
                 final_obs[i] = task.obs32[i].copy()
             final = {"final_obs": final_obs, "_final_obs": done, "final_info": self._infos(done.copy())[1],
                      "_final_info": done.copy()}
-            task.reset_rows(rows, all_rngs)
+            task.reset_rows(rows)
         obs, infos = self._infos()
         if final is not None:
             infos.update(final)
@@ -317,21 +320,14 @@ class ConstraintVectorEnv(VectorEnv):
         self._proto.close()
 
     # ------------------------------------------------------------------ SyncVectorEnv-style helpers
-    @property  # type: ignore[misc]
-    def np_random(self) -> tuple[np.random.Generator, ...]:  # type: ignore[override]
-        """The sub-environments' generators (like ``SyncVectorEnv.np_random``)."""
-        if self._rngs is None:
-            raise ResetNeeded("the sub-environments' generators exist after reset()")
-        return tuple(self._rngs)
-
     @property
     def np_random_seed(self) -> tuple[int | None, ...]:  # type: ignore[override]
-        """The seeds the sub-environments' generators were made from (like ``SyncVectorEnv``)."""
+        """The seeds the sub-environments' streams were last seeded with (None: entropy), like ``SyncVectorEnv``."""
         return tuple(self._seeds)
 
     def get_attr(self, name: str) -> tuple[Any, ...]:
-        """An attribute for every sub-environment (shared ones repeated; ``np_random`` per row)."""
-        if name in ("np_random", "np_random_seed"):
+        """An attribute for every sub-environment (shared ones repeated; ``np_random_seed`` per row)."""
+        if name == "np_random_seed":
             return getattr(self, name)
         value = getattr(self, name) if hasattr(self, name) else getattr(self._proto, name)
         return (value,) * self.num_envs

@@ -5,30 +5,35 @@ implementation is dominated by per-call overhead (about 1 us per array op).  Emi
 common-subexpression-eliminated formulas as straight-line scalar code and compiling it with
 numba gives one fused kernel per batch: microseconds at batch 1, millions of steps per second
 in a batch.  The generated file is written once to a cache folder keyed by a hash of the
-symbolic input, and numba caches its machine code beside it, so a new process neither
-re-derives nor recompiles.
+symbolic input (or, for the shipped systems, of a *recipe* such as ``("flocking", 4)`` plus the
+source text of the files that define it, see :func:`recipe_key`), and numba caches its machine
+code beside it, so a new process neither re-derives nor recompiles.  Only code generation
+imports sympy: loading a cached module does not.
 """
 
 from __future__ import annotations
 
 import hashlib
 import importlib.util
+import math
 import os
 import sys
 import tempfile
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
+from functools import cache
 from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
-import sympy as sp
-from sympy.printing.pycode import PythonCodePrinter
+if TYPE_CHECKING:  # sympy is imported by the functions that generate code, never on a warm start
+    import sympy as sp
 
-from vnhc_gym.mechanics.constraint import SymbolicLaw
+    from vnhc_gym.mechanics.constraint import SymbolicLaw
 
-__all__ = ["cache_dir", "generate_source", "load_module", "CODEGEN_VERSION"]
+__all__ = ["cache_dir", "generate_source", "load_module", "recipe_key", "sources_digest", "CODEGEN_VERSION"]
 
-CODEGEN_VERSION = "10"
+CODEGEN_VERSION = "11"
 _LOCK = threading.Lock()
 _LOADED: dict[str, ModuleType] = {}
 
@@ -40,23 +45,61 @@ def cache_dir() -> Path:
     return base / f"codegen-v{CODEGEN_VERSION}"
 
 
-class _Printer(PythonCodePrinter):
-    """Plain ``math`` printer; integer powers become products (faster, exact for squares)."""
+def sources_digest(paths: Iterable[str | os.PathLike[str]]) -> str:
+    """sha256 over the names and contents of ``paths`` (the files that define a system's symbolic content).
 
-    def _print_Pow(self, expr: sp.Pow, rational: bool = False) -> str:
-        base, exp = expr.args
-        if exp.is_Integer and 1 < int(exp) <= 4:
-            b = self.parenthesize(base, 100)
-            return "(" + "*".join([b] * int(exp)) + ")"  # parenthesised: it may follow a "/"
-        if exp.is_Integer and -4 <= int(exp) <= -1:
-            b = self.parenthesize(base, 100)
-            return "1.0/(" + "*".join([b] * -int(exp)) + ")"
-        return super()._print_Pow(expr, rational=rational)
+    Part of a recipe's cache key (:func:`recipe_key`): editing any of these files gives a new key,
+    so a stale generated module is never reused.  File names, not folders, enter the hash, so the
+    key does not depend on where the package is installed.
+    """
+    h = hashlib.sha256()
+    for path in paths:
+        data = Path(path).read_bytes()
+        h.update(f"{Path(path).name}\x00{len(data)}\x00".encode())
+        h.update(data)
+    return h.hexdigest()
+
+
+def recipe_key(recipe: tuple[object, ...], digest: str) -> list[str]:
+    """Cache-key parts of a recipe-built system: the recipe (e.g. ``("flocking", 4)``) and a
+    :func:`sources_digest`.  :func:`load_module` adds ``CODEGEN_VERSION``.
+
+    Recipe items must be str, int, float or bool (their ``repr`` is stable across processes).
+    """
+    if not isinstance(recipe, tuple) or not recipe:
+        raise TypeError(f"recipe must be a non-empty tuple, got {recipe!r}")
+    for item in recipe:
+        if type(item) not in (str, int, float, bool):
+            raise TypeError(f"recipe items must be str, int, float or bool, got {type(item).__name__} in {recipe!r}")
+    return ["recipe", repr(recipe), digest]
+
+
+@cache
+def _printer_class() -> Any:
+    """A plain ``math`` printer class; integer powers become products (faster, exact for squares).
+
+    Built on first use so that importing this module does not import sympy."""
+    from sympy.printing.pycode import PythonCodePrinter
+
+    class _Printer(PythonCodePrinter):
+        def _print_Pow(self, expr: sp.Pow, rational: bool = False) -> str:
+            base, exp = expr.args
+            if exp.is_Integer and 1 < int(exp) <= 4:
+                b = self.parenthesize(base, 100)
+                return "(" + "*".join([b] * int(exp)) + ")"  # parenthesised: it may follow a "/"
+            if exp.is_Integer and -4 <= int(exp) <= -1:
+                b = self.parenthesize(base, 100)
+                return "1.0/(" + "*".join([b] * -int(exp)) + ")"
+            return super()._print_Pow(expr, rational=rational)
+
+    return _Printer
 
 
 def _body(assignments: list[tuple[str, sp.Expr]], subs: dict[sp.Symbol, sp.Symbol], reads: str) -> str:
     """Straight-line code for ``target = expr`` pairs with shared subexpressions."""
-    printer = _Printer({"fully_qualified_modules": True, "standard": "python3"})
+    import sympy as sp
+
+    printer = _printer_class()({"fully_qualified_modules": True, "standard": "python3"})
     exprs = [sp.sympify(e).xreplace(subs) for _, e in assignments]
     temps, reduced = sp.cse(exprs, symbols=sp.numbered_symbols("t_"), optimizations="basic")
     lines = [reads] if reads else []
@@ -70,6 +113,8 @@ def _body(assignments: list[tuple[str, sp.Expr]], subs: dict[sp.Symbol, sp.Symbo
 
 
 def _used(assignments: list[tuple[str, sp.Expr]], names: list[sp.Symbol]) -> list[int]:
+    import sympy as sp
+
     free: set[sp.Symbol] = set()
     for _, e in assignments:
         free |= sp.sympify(e).free_symbols
@@ -80,8 +125,20 @@ def _reads(indices: list[int], array: str, prefix: str) -> str:
     return "; ".join(f"{prefix}{i} = {array}[{i}]" for i in indices)
 
 
-def generate_source(law: SymbolicLaw, outputs: dict[str, sp.Expr] | None = None) -> str:
-    """Python source of a numba module implementing ``law`` (see the module template)."""
+def _literal(value: float) -> str:
+    """A float as Python source (``repr`` round-trips exactly; inf and nan need a call)."""
+    return repr(value) if math.isfinite(value) else f"float({str(value)!r})"
+
+
+def generate_source(law: SymbolicLaw, outputs: Mapping[str, sp.Expr] | None = None) -> str:
+    """Python source of a numba module implementing ``law`` (see the module template).
+
+    Besides the kernels, the module records what :class:`~vnhc_gym.mechanics.ConstrainedSystem`
+    needs to run without sympy: ``NAME``, ``N``, ``M``, ``NG``, ``HOLONOMIC``, ``PARAM_NAMES``,
+    ``PARAM_DEFAULTS`` and ``OUTPUT_NAMES``.
+    """
+    import sympy as sp
+
     system = law.system
     n, m = system.n, system.m
     state_syms = list(system.q) + list(system.qd)
@@ -128,9 +185,11 @@ def generate_source(law: SymbolicLaw, outputs: dict[str, sp.Expr] | None = None)
                  "    return 0")
     else:
         solve = "    return solve_small(C, G, u, tol)"
+    defaults = ", ".join(_literal(v) for v in system.default_param_values())
     return _TEMPLATE.format(
         name=system.name, n=n, m=m, n_params=len(param_syms), n_gains=law.n_gains, n_aux=len(outputs),
-        holonomic=law.phi_h is not None,
+        holonomic=law.phi_h is not None, param_names=tuple(str(p) for p in param_syms),
+        param_defaults=f"({defaults}{',' if len(param_syms) == 1 else ''})", output_names=tuple(outputs),
         phi_body=phi_body, hol_body=hol_body, dyn_body=block(dyn), cg_body=block(cg),
         energy_body=block([("e", law.energy)]), aux_body=block(aux) if aux else "    pass",
         acc_body=acc_body, solve_body=solve, diagonal=diagonal,
@@ -181,6 +240,7 @@ from numba import njit, prange
 
 from vnhc_gym.mechanics._kernels import FLAG_NONFINITE, FLAG_SINGULAR, solve_small
 
+NAME = {name!r}
 N = {n}
 M = {m}
 NP = {n_params}
@@ -188,6 +248,9 @@ NG = {n_gains}
 NAUX = {n_aux}
 HOLONOMIC = {holonomic}
 DIAGONAL_C = {diagonal}
+PARAM_NAMES = {param_names!r}
+PARAM_DEFAULTS = {param_defaults}
+OUTPUT_NAMES = {output_names!r}
 
 
 @njit(cache=True, inline="always", error_model="numpy")

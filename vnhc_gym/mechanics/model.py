@@ -9,22 +9,23 @@ with preallocated buffers, like python-control's checked ``dynamics`` beside a f
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Literal
+import os
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-import sympy as sp
 from numpy.typing import ArrayLike, NDArray
 
 from vnhc_gym.mechanics._kernels import FLAG_NONFINITE, FLAG_SINGULAR
-from vnhc_gym.mechanics.codegen import generate_source, load_module
-from vnhc_gym.mechanics.constraint import (
-    HolonomicConstraint,
-    SymbolicLaw,
-    VelocityConstraint,
-    derive_law,
-)
-from vnhc_gym.mechanics.system import MechanicalSystem
+from vnhc_gym.mechanics.codegen import load_module, recipe_key, sources_digest
+
+if TYPE_CHECKING:  # the symbolic layer (sympy) is imported only when a model needs it
+    import sympy as sp
+
+    from vnhc_gym.mechanics.constraint import HolonomicConstraint, SymbolicLaw, VelocityConstraint
+    from vnhc_gym.mechanics.system import MechanicalSystem
 
 __all__ = ["ConstrainedSystem", "SingularControlError", "Feedback", "FLAG_SINGULAR", "FLAG_NONFINITE",
            "FEEDBACK_MODES"]
@@ -34,6 +35,15 @@ Feedback = Literal["open", "continuous", "sampled"]
 FEEDBACK_MODES: dict[str, int] = {"open": 0, "continuous": 1, "sampled": 2}
 
 Array = NDArray[np.float64]
+
+#: Files whose text defines every system's symbolic content and generated code; their hash is
+#: part of every recipe's cache key (:meth:`ConstrainedSystem.from_recipe`).
+CORE_SOURCES: tuple[Path, ...] = tuple(Path(__file__).with_name(f) for f in ("system.py", "constraint.py",
+                                                                            "codegen.py"))
+
+Parts = tuple["MechanicalSystem", "VelocityConstraint | HolonomicConstraint", "dict[str, sp.Expr]"]
+#: A recipe's builder: returns ``(system, constraint)`` or ``(system, constraint, outputs)``.
+Builder = Callable[[], tuple[Any, ...]]
 
 
 class SingularControlError(ArithmeticError):
@@ -48,6 +58,12 @@ class SingularControlError(ArithmeticError):
         self.rows = rows
         super().__init__(f"decoupling matrix C is singular or ill-conditioned at batch rows {rows.tolist()}; "
                          "the stabilising law is undefined there (see ConstrainedSystem.singular_tol)")
+
+
+def _check_tol(singular_tol: float) -> float:
+    if not singular_tol > 0:
+        raise ValueError(f"singular_tol must be > 0, got {singular_tol}")
+    return float(singular_tol)
 
 
 class ConstrainedSystem:
@@ -73,17 +89,33 @@ class ConstrainedSystem:
     States are ``s = (q, qd)`` of length ``2n``.  Parameters are a vector in the order of
     ``param_names``; every method takes ``params=None`` (defaults), a vector, or a
     ``(B, n_params)`` batch.
+
+    The constructor keys the generated-code cache on the symbolic input itself, so it needs
+    sympy.  :meth:`from_recipe` (used by the shipped systems) keys it on a small recipe and the
+    source files instead, and builds the symbolic side only when it is asked for: a warm start
+    neither imports sympy nor derives anything.
     """
+
+    name: str
+    n: int
+    m: int
+    n_gains: int
+    holonomic: bool
+    param_names: tuple[str, ...]
+    default_params: Array
+    output_names: tuple[str, ...]
+    kernels: ModuleType
 
     def __init__(self, system: MechanicalSystem, constraint: VelocityConstraint | HolonomicConstraint,
                  outputs: Mapping[str, sp.Expr] | None = None, singular_tol: float = 1e-10) -> None:
-        if not singular_tol > 0:
-            raise ValueError(f"singular_tol must be > 0, got {singular_tol}")
-        self.system = system
-        self.constraint = constraint
-        self.singular_tol = float(singular_tol)
-        self.output_names = tuple(outputs or {})
-        self._outputs = dict(outputs or {})
+        import sympy as sp
+
+        from vnhc_gym.mechanics.constraint import HolonomicConstraint
+
+        self.singular_tol = _check_tol(singular_tol)
+        self._recipe: tuple[object, ...] | None = None
+        self._build: Builder | None = None
+        self._parts: Parts | None = (system, constraint, dict(outputs or {}))
         self._law: SymbolicLaw | None = None
         holonomic = isinstance(constraint, HolonomicConstraint)
         expr = constraint.phi_h if isinstance(constraint, HolonomicConstraint) else constraint.phi
@@ -92,36 +124,137 @@ class ConstrainedSystem:
                sp.srepr(tuple(system.params)), str(holonomic), sp.srepr(expr),
                sp.srepr(tuple(self._outputs.items()))]
         self._key = key
-        self.kernels = load_module(key, lambda: generate_source(self.symbolic, self._outputs))
+        self.kernels = load_module(key, self._make_source)
+        # From the symbolic input, not the module: the key does not cover the default values.
+        self.name = system.name
         self.n = system.n
         self.m = system.m
         self.n_gains = int(self.kernels.NG)
         self.holonomic = holonomic
         self.param_names = tuple(str(p) for p in system.params)
         self.default_params = np.asarray(system.default_param_values(), dtype=np.float64)
+        self.output_names = tuple(self._outputs)
+
+    @classmethod
+    def from_recipe(cls, recipe: tuple[object, ...], build: Builder, *,
+                    sources: Iterable[str | os.PathLike[str]] = (), singular_tol: float = 1e-10) -> ConstrainedSystem:
+        """A compiled system named by ``recipe``; ``build()`` runs only if the symbolic side is needed.
+
+        Parameters
+        ----------
+        recipe : tuple of str, int, float or bool
+            Names the system within ``sources``, e.g. ``("flocking", 4)``.
+        build : callable
+            ``build() -> (system, constraint)`` or ``(system, constraint, outputs)``, the
+            arguments of the constructor.  It is stored (and pickled with the model), so it must
+            be picklable: a module-level function or a ``functools.partial`` of one, not a lambda.
+        sources : iterable of path
+            The files that define what ``build`` returns (its own module, the modules it draws
+            expressions from).  The cache key is ``recipe`` + ``CODEGEN_VERSION`` + a sha256 of
+            their text and of ``system.py``, ``constraint.py`` and ``codegen.py``: editing any
+            of them regenerates the module.  A change that these files do not show (a builder
+            reading a data file, say) must change ``recipe``.
+        singular_tol : float, default 1e-10
+
+        Notes
+        -----
+        On a cache hit this neither imports sympy nor calls ``build``: every attribute the
+        numeric methods need (sizes, parameter names and defaults, output names) is read from
+        the generated module.  ``system``, ``constraint`` and ``symbolic`` call ``build`` on
+        first access.
+        """
+        self = cls.__new__(cls)
+        self.singular_tol = _check_tol(singular_tol)
+        self._recipe = tuple(recipe)
+        self._build = build
+        self._parts = None
+        self._law = None
+        self._key = recipe_key(self._recipe, sources_digest([*CORE_SOURCES, *sources]))
+        self.kernels = k = load_module(self._key, self._make_source)
+        self.name = str(k.NAME)
+        self.n = int(k.N)
+        self.m = int(k.M)
+        self.n_gains = int(k.NG)
+        self.holonomic = bool(k.HOLONOMIC)
+        self.param_names = tuple(k.PARAM_NAMES)
+        self.default_params = np.array(k.PARAM_DEFAULTS, dtype=np.float64)
+        self.output_names = tuple(k.OUTPUT_NAMES)
+        return self
+
+    def _make_source(self) -> str:
+        from vnhc_gym.mechanics.codegen import generate_source
+
+        return generate_source(self.symbolic, self._outputs)
 
     def __getstate__(self) -> dict[str, object]:
-        # The compiled module is not picklable; it is re-imported from the on-disk cache.
+        # The compiled module is not picklable; it is re-imported from the on-disk cache.  A
+        # recipe-built model pickles its recipe and builder, not the sympy objects.
         state = self.__dict__.copy()
         state["kernels"] = None
         state["_law"] = None
+        if state["_build"] is not None:
+            state["_parts"] = None
         return state
 
     def __setstate__(self, state: dict[str, object]) -> None:
         self.__dict__.update(state)
-        self.kernels = load_module(self._key, lambda: generate_source(self.symbolic, self._outputs))
+        self.kernels = load_module(self._key, self._make_source)
 
     # ------------------------------------------------------------------ symbolic side
+    def _symbolic_parts(self) -> Parts:
+        if self._parts is None:
+            assert self._build is not None  # set by from_recipe whenever _parts is None
+            system, constraint, *rest = self._build()
+            outputs = dict(rest[0] or {}) if rest else {}
+            seen = (system.name, system.n, system.m, tuple(str(p) for p in system.params), tuple(outputs))
+            # (On a cache miss this runs before the metadata is read from the new module.)
+            expected = tuple(getattr(self, a, None) for a in ("name", "n", "m", "param_names", "output_names"))
+            if "name" in self.__dict__ and seen != expected:
+                raise RuntimeError(f"the builder of recipe {self._recipe!r} returned a system {seen} that does not "
+                                   f"match its cached module {expected}; is the builder deterministic?")
+            self._parts = (system, constraint, outputs)
+        return self._parts
+
+    @property
+    def system(self) -> MechanicalSystem:
+        """The symbolic system (built on first access for a recipe-built model)."""
+        return self._symbolic_parts()[0]
+
+    @property
+    def constraint(self) -> VelocityConstraint | HolonomicConstraint:
+        """The virtual constraint (built on first access for a recipe-built model)."""
+        return self._symbolic_parts()[1]
+
+    @property
+    def _outputs(self) -> dict[str, sp.Expr]:
+        return self._symbolic_parts()[2]
+
+    @property
+    def recipe(self) -> tuple[object, ...] | None:
+        """The recipe of a model made by :meth:`from_recipe`, else ``None``."""
+        return self._recipe
+
     @property
     def symbolic(self) -> SymbolicLaw:
         """The symbolic law (derived lazily: a warm start from the cache never needs it)."""
         if self._law is None:
+            from vnhc_gym.mechanics.constraint import derive_law
+
             self._law = derive_law(self.system, self.constraint)
         return self._law
 
     def params(self, **overrides: float) -> Array:
-        """Parameter vector with named overrides, e.g. ``params(m=3.0)``."""
-        return np.asarray(self.system.default_param_values(overrides), dtype=np.float64)
+        """Parameter vector with named overrides, e.g. ``params(m=3.0)``.
+
+        Same checks and messages as :meth:`MechanicalSystem.default_param_values`, from the
+        compiled module's parameter names and defaults (no sympy).
+        """
+        values = dict(zip(self.param_names, self.default_params.tolist(), strict=True))
+        for key, val in overrides.items():
+            if key not in values:
+                raise ValueError(f"unknown parameter {key!r}; valid names: {sorted(values)}")
+            values[key] = float(val)
+        return np.array([values[k] for k in self.param_names], dtype=np.float64)
 
     # ------------------------------------------------------------------ argument checks
     def _states(self, state: ArrayLike) -> tuple[Array, bool]:
@@ -298,4 +431,4 @@ class ConstrainedSystem:
 
     def __repr__(self) -> str:
         kind = "holonomic" if self.holonomic else "velocity"
-        return f"ConstrainedSystem({self.system.name!r}, n={self.n}, m={self.m}, {kind} constraint)"
+        return f"ConstrainedSystem({self.name!r}, n={self.n}, m={self.m}, {kind} constraint)"

@@ -22,21 +22,32 @@ singular where the leader moves along the diagonal ``xd_N = zd_N``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cache
+from functools import cache, partial
+from typing import TYPE_CHECKING
 
 import numpy as np
-import sympy as sp
 
-from vnhc_gym.mechanics import ConstrainedSystem, MechanicalSystem, VelocityConstraint
+from vnhc_gym.mechanics import ConstrainedSystem
+
+if TYPE_CHECKING:
+    from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint
 
 __all__ = ["flocking_system", "make_flocking", "FlockingPreset", "FLOCKING_PRESETS", "flocking_state"]
 
 
-def flocking_system(n_agents: int = 4) -> tuple[MechanicalSystem, VelocityConstraint]:
-    """Symbolic flocking system and alignment constraint for ``n_agents`` particles (leader last)."""
+def _check_n_agents(n_agents: int) -> int:
     if int(n_agents) != n_agents or n_agents < 2:
         raise ValueError(f"n_agents must be an integer >= 2, got {n_agents}")
-    n = int(n_agents)
+    return int(n_agents)
+
+
+def flocking_system(n_agents: int = 4) -> tuple[MechanicalSystem, VelocityConstraint]:
+    """Symbolic flocking system and alignment constraint for ``n_agents`` particles (leader last)."""
+    import sympy as sp
+
+    from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint
+
+    n = _check_n_agents(n_agents)
     xs = sp.symbols(f"x_1:{n + 1}", real=True)
     zs = sp.symbols(f"z_1:{n + 1}", real=True)
     xds = sp.symbols(f"xd_1:{n + 1}", real=True)
@@ -65,9 +76,11 @@ def make_flocking(n_agents: int = 4) -> ConstrainedSystem:
     """Compiled flocking system (cached per ``n_agents``).
 
     Parameters are ``(m_1, ..., m_N, g)``, defaults ``m_i = 2``, ``g = 10`` (the paper's).
+    Keyed on the recipe ``("flocking", n_agents)`` and this file's text: a warm start does not
+    import sympy (see :meth:`ConstrainedSystem.from_recipe`).
     """
-    system, constraint = flocking_system(n_agents)
-    return ConstrainedSystem(system, constraint)
+    n = _check_n_agents(n_agents)
+    return ConstrainedSystem.from_recipe(("flocking", n), partial(flocking_system, n), sources=(__file__,))
 
 
 def flocking_state(positions: np.ndarray, velocities: np.ndarray) -> np.ndarray:

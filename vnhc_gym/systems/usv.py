@@ -25,13 +25,19 @@ is never singular.  The law derived from Theorem 2 is
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, partial
+from typing import TYPE_CHECKING
 
 import numpy as np
-import sympy as sp
 
-from vnhc_gym.mechanics import ConstrainedSystem, MechanicalSystem, VelocityConstraint
+from vnhc_gym.mechanics import ConstrainedSystem
+from vnhc_gym.systems import currents
 from vnhc_gym.systems.currents import get_current
+
+if TYPE_CHECKING:
+    import sympy as sp
+
+    from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint
 
 __all__ = ["usv_system", "make_usv", "USVPreset", "USV_PRESETS", "USV_OUTPUTS"]
 
@@ -41,6 +47,10 @@ USV_OUTPUTS = ("C1", "C2", "dC1dx", "dC1dy", "dC2dx", "dC2dy")
 
 def usv_system(current: str = "northeast") -> tuple[MechanicalSystem, VelocityConstraint, dict[str, sp.Expr]]:
     """Symbolic USV, its affine constraint and the current outputs, for a named current."""
+    import sympy as sp
+
+    from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint
+
     field = get_current(current)
     x, y, th = sp.symbols("x y theta", real=True)
     xd, yd, thd = sp.symbols("xd yd thetad", real=True)
@@ -72,9 +82,12 @@ def make_usv(current: str = "northeast") -> ConstrainedSystem:
     """Compiled USV for a named current (cached per name).
 
     Parameters are ``(m, I, current_scale, c_<current params>...)``; see ``param_names``.
+    Keyed on the recipe ``("usv", current)`` and the text of this file and of the current
+    library: a warm start does not import sympy (see :meth:`ConstrainedSystem.from_recipe`).
     """
-    system, constraint, outputs = usv_system(current)
-    return ConstrainedSystem(system, constraint, outputs=outputs)
+    get_current(current)  # validates the name without building anything
+    return ConstrainedSystem.from_recipe(("usv", current), partial(usv_system, current),
+                                         sources=(__file__, currents.__file__))
 
 
 @dataclass(frozen=True)
