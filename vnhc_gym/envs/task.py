@@ -381,6 +381,7 @@ class ConstraintTask:
                               self.dv, self.phi, self.params_nominal, self.aux, *self._extra)
         self._finish_tail = (cfg.obs_noise, cfg.obs_clip, self.phi, self.action, self.status, cfg.phi_scale,
                              cfg.action_cost, cfg.reward_clip, self.reward, self.abs_phi, self.steps, self.obs32)
+        self._finish_args = (self.obs, self.rng, self._no_skip, *self._finish_tail)
         self.feedback = "open"
         self._kicks = config.impulse_prob > 0
 
@@ -493,7 +494,8 @@ class ConstraintTask:
             self._advance_timed()
         else:
             self._advance(*self._advance_args)
-        self.tail((self.obs, self.rng, sk, *self._finish_tail), self._timed and self._threaded)
+        fargs = self._finish_args if skip is None else (self.obs, self.rng, skip, *self._finish_tail)
+        self.tail(fargs, self._timed and self._threaded)
         return self.status
 
     def _advance_timed(self) -> None:
