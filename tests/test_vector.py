@@ -373,3 +373,24 @@ def test_geometric_baseline_batched_predict() -> None:
             np.testing.assert_array_equal(actions, rows)
             obs, _, _, _, info = env.step(actions)
         assert np.all(info["abs_phi"] < start)  # the law drives phi towards 0
+
+
+def test_returned_arrays_are_never_overwritten_while_held() -> None:
+    """batch_info refills an earlier step's arrays only when nobody references them any more:
+    observations, infos and views of them that a caller keeps stay as they were."""
+    env = FlockingAlignVectorEnv(4, max_episode_steps=5)
+    env.reset(seed=0)
+    a = np.full((4, 3), 0.4, dtype=np.float32)
+    kept = [env.step(a) for _ in range(3)]
+    snapshot = [(o.copy(), {k: np.copy(v) for k, v in info.items()}) for o, _, _, _, info in kept]
+    view = env.step(a)[4]["state"][2:, 1]
+    view_before = view.copy()
+    ids = set()
+    for _ in range(12):  # results dropped at once: memory is reused (a handful of buffer sets)
+        ids.add(id(env.step(a)[4]["phi"]))
+    assert len(ids) <= 3
+    for (o, _, _, _, info), (o0, info0) in zip(kept, snapshot, strict=True):
+        np.testing.assert_array_equal(o, o0)
+        for k, v in info0.items():
+            np.testing.assert_array_equal(info[k], v)
+    np.testing.assert_array_equal(view, view_before)

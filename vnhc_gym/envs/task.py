@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numbers
 import os
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from time import perf_counter
@@ -183,6 +184,8 @@ REASONS = {STATUS_NONFINITE: "non_finite_state", STATUS_INVALID: "out_of_domain"
 #: Batches at least this large step on numba's thread pool (when it is faster, see
 #: ConstraintTask._advance_timed).
 PARALLEL_MIN_ROWS = 256
+#: Sets of info arrays kept for reuse by ConstraintTask.batch_info (see there).
+_POOL_SIZE = 3
 #: First and largest interval (steps) between timing probes of the kernel not in use.
 _PROBE_MIN, _PROBE_MAX = 16, 1024
 
@@ -298,18 +301,26 @@ def _start_rows(rows, obs, rng, sigma, clip, phi, status, abs_phi, obs32, steps,
 
 
 @njit(cache=True)
-def _snapshot(status, state, next_state, phi, abs_phi, force, params, obs32):
-    """Fresh copies for :meth:`ConstraintTask.batch_info` (``state`` from ``next_state`` where
-    non-finite) and the number of rows with a non-OK status."""
-    state_c = np.empty_like(state)
+def _snapshot(status, state, next_state, phi, abs_phi, force, params, obs32, o_obs, o_phi, o_abs, o_state, o_force,
+              o_params):
+    """Copies for :meth:`ConstraintTask.batch_info` into the ``o_*`` buffers (``state`` from
+    ``next_state`` where non-finite); returns the number of rows with a non-OK status."""
     n_bad = 0
     for r in range(status.shape[0]):
         src = next_state if status[r] == STATUS_NONFINITE else state
         for j in range(state.shape[1]):
-            state_c[r, j] = src[r, j]
+            o_state[r, j] = src[r, j]
+        for j in range(obs32.shape[1]):
+            o_obs[r, j] = obs32[r, j]
+        for j in range(phi.shape[1]):
+            o_phi[r, j] = phi[r, j]
+            o_force[r, j] = force[r, j]
+        for j in range(params.shape[1]):
+            o_params[r, j] = params[r, j]
+        o_abs[r] = abs_phi[r]
         if status[r] != STATUS_OK:
             n_bad += 1
-    return obs32.copy(), phi.copy(), abs_phi.copy(), state_c, force.copy(), params.copy(), n_bad
+    return n_bad
 
 
 class ConstraintTask:
@@ -390,6 +401,7 @@ class ConstraintTask:
         state = self.__dict__.copy()
         state["k"] = None
         state["_advance"] = None
+        state.pop("_pool", None)  # reusable info buffers: not part of the state
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -530,12 +542,34 @@ class ConstraintTask:
     def batch_info(self) -> tuple[NDArray[np.float32], dict[str, Any], int]:
         """All rows at once: a copy of ``obs32``, the arrays of :meth:`info` stacked over rows
         (same keys, dtypes and values; keep the two in sync) without ``termination_reason``,
-        and the number of rows with a non-OK status (those that carry a termination reason)."""
-        obs, phi, abs_phi, state, force, params, n_bad = _snapshot(
-            self.status, self.state, self.next_state, self.phi, self.abs_phi, self.force_applied, self.params_true,
-            self.obs32)
-        return obs, {"phi": phi, "abs_phi": abs_phi, "state": state, "force": force, "params": params,
-                     "time": self.steps * self.config.dt}, n_bad
+        and the number of rows with a non-OK status (those that carry a termination reason).
+
+        The copies are fresh arrays unless an earlier call's arrays are referenced by nobody
+        any more (checked with ``sys.getrefcount``), in which case those are refilled: the usual
+        training loop drops each step's infos, and reusing their memory avoids page-faulting
+        about 1 MB of new arrays per step at 4096 sub-envs.  An array (or a view of it) that
+        the caller still holds is never written again.
+        """
+        bufs = self._info_buffers()
+        o_obs, o_phi, o_abs, o_state, o_force, o_params = bufs
+        n_bad = _snapshot(self.status, self.state, self.next_state, self.phi, self.abs_phi, self.force_applied,
+                          self.params_true, self.obs32, *bufs)
+        return o_obs, {"phi": o_phi, "abs_phi": o_abs, "state": o_state, "force": o_force, "params": o_params,
+                       "time": self.steps * self.config.dt}, n_bad
+
+    def _info_buffers(self) -> tuple[np.ndarray, ...]:
+        """A set of output arrays for :meth:`batch_info` that nobody else references."""
+        pool: list[tuple[np.ndarray, ...]] = self.__dict__.setdefault("_pool", [])
+        for bufs in pool:
+            # References: the tuple, getrefcount's argument and the comprehension's variable.
+            if all(sys.getrefcount(b) <= 3 for b in bufs):
+                return bufs
+        bufs = (np.empty_like(self.obs32), np.empty_like(self.phi), np.empty_like(self.abs_phi),
+                np.empty_like(self.state), np.empty_like(self.force_applied), np.empty_like(self.params_true))
+        pool.append(bufs)
+        if len(pool) > _POOL_SIZE:
+            del pool[0]  # held by the caller: theirs now, freed when they let go
+        return bufs
 
     def info(self, i: int) -> dict[str, Any]:
         """The documented per-step ``info`` of row ``i`` (fresh float64 copies)."""
