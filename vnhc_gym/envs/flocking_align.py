@@ -17,6 +17,7 @@ from vnhc_gym.envs.task import (
     STATUS_NONFINITE,
     STATUS_OK,
     ConstraintTask,
+    ObserveKernels,
     TaskConfig,
     _is_real,
     draw_mismatch,
@@ -141,6 +142,8 @@ class FlockingConfig(TaskConfig):
 class FlockingTask(ConstraintTask):
     """Batched flocking episodes (see :class:`FlockingAlignEnv` for the semantics)."""
 
+    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, _tail_parallel)
+
     def __init__(self, config: TaskConfig, n: int, *, n_agents: int = 4, masses: Any = 2.0, g: float = 10.0,
                  preset: str | None = None) -> None:
         if preset is not None:
@@ -175,18 +178,6 @@ class FlockingTask(ConstraintTask):
     def sample_rows(self, rows: NDArray[np.intp]) -> None:
         _sample(rows, self.rng, self._preset_state, self.preset is not None, self.n_agents, self.nominal,
                 self._mismatch_mask, self.config.param_mismatch, self.state, self.params_true, self.params_nominal)
-
-    def observe(self, rows: NDArray[np.intp] | None = None) -> None:
-        if rows is None:
-            _observe(*self._observe_args)
-        else:
-            _observe_at(rows, *self._observe_args)
-
-    def tail(self, finish_args: tuple[Any, ...], threaded: bool) -> None:
-        if threaded:
-            _tail_parallel(self._observe_args, finish_args, 2)
-        else:
-            _tail(self._observe_args, finish_args)
 
     def impulse_mask(self) -> NDArray[np.float64]:
         return self._kick_mask

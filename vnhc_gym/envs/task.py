@@ -17,7 +17,7 @@ import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from time import perf_counter
-from typing import Any
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -27,7 +27,7 @@ from vnhc_gym.envs._random import entropy_states, normal_pair, seed_states, unif
 from vnhc_gym.mechanics import FEEDBACK_MODES, ConstrainedSystem
 
 __all__ = ["TaskConfig", "ConstraintTask", "apply_action", "check_action", "draw_mismatch", "finish_rows",
-           "reject_unknown", "resolve_config", "SCENARIOS"]
+           "ObserveKernels", "reject_unknown", "resolve_config", "SCENARIOS"]
 
 Array = NDArray[np.float64]
 
@@ -184,6 +184,8 @@ REASONS = {STATUS_NONFINITE: "non_finite_state", STATUS_INVALID: "out_of_domain"
 #: Batches at least this large step on numba's thread pool (when it is faster, see
 #: ConstraintTask._advance_timed).
 PARALLEL_MIN_ROWS = 256
+#: Row blocks of the threaded kernels (one per core of the 2-core reference machine).
+N_CHUNKS = 2
 #: Sets of info arrays kept for reuse by ConstraintTask.batch_info (see there).
 _POOL_SIZE = 3
 #: First and largest interval (steps) between timing probes of the kernel not in use.
@@ -323,6 +325,19 @@ def _snapshot(status, state, next_state, phi, abs_phi, force, params, obs32, o_o
     return n_bad
 
 
+class ObserveKernels(NamedTuple):
+    """An environment's compiled observation kernels, all over ``(*observe_args)``:
+    ``all(*a)`` every row, ``at(rows, *a)`` the given rows, ``tail(a, finish_args)`` observe then
+    :func:`finish_rows` every row in one pass, ``tail_parallel(a, finish_args, n_chunks)`` the
+    same on numba's thread pool.  (numba cannot cache a kernel that takes another kernel as an
+    argument, so each environment module compiles its own four.)"""
+
+    all: Any
+    at: Any
+    tail: Any
+    tail_parallel: Any
+
+
 class ConstraintTask:
     """``B`` episodes of a constrained system, stepped together.
 
@@ -332,6 +347,8 @@ class ConstraintTask:
     """
 
     obs_dim: int
+    observe_kernels: ClassVar[ObserveKernels]
+    _observe_args: tuple[Any, ...]
 
     def __init__(self, model: ConstrainedSystem, config: TaskConfig, force_bound: Array, n: int,
                  default_impulse: float) -> None:
@@ -342,7 +359,7 @@ class ConstraintTask:
         if n >= PARALLEL_MIN_ROWS:
             _start_thread_pool()
         self._advance = self.k.advance_parallel if n >= PARALLEL_MIN_ROWS else self.k.advance
-        self._extra = (2,) if n >= PARALLEL_MIN_ROWS else ()
+        self._extra = (N_CHUNKS,) if n >= PARALLEL_MIN_ROWS else ()
         # Big batches time the threaded and the serial kernel now and then and run the faster one
         # (they compute the same numbers): on a machine with more busy threads than cores the
         # threaded one can be many times slower.  See _advance_timed.
@@ -435,13 +452,20 @@ class ConstraintTask:
 
     def observe(self, rows: NDArray[np.intp] | None = None) -> None:
         """Fill ``self.obs`` (clipped float64) and ``self.status`` from ``self.flags`` for ``rows``
-        (default all)."""
-        raise NotImplementedError
+        (default all), with the subclass's ``observe_kernels`` on ``self._observe_args``."""
+        k = self.observe_kernels
+        if rows is None:
+            k.all(*self._observe_args)
+        else:
+            k.at(rows, *self._observe_args)
 
     def tail(self, finish_args: tuple[Any, ...], threaded: bool) -> None:
         """:meth:`observe` then :func:`finish_rows` for every row, fused in one compiled loop
         (on numba's thread pool if ``threaded``)."""
-        raise NotImplementedError
+        if threaded:
+            self.observe_kernels.tail_parallel(self._observe_args, finish_args, N_CHUNKS)
+        else:
+            self.observe_kernels.tail(self._observe_args, finish_args)
 
     def impulse_mask(self) -> Array:
         """``(n,)`` weights of the velocity entries that impulses kick (0 = never)."""

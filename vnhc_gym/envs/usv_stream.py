@@ -19,6 +19,7 @@ from vnhc_gym.envs.task import (
     STATUS_OK,
     STATUS_SPIN,
     ConstraintTask,
+    ObserveKernels,
     TaskConfig,
     _is_real,
     draw_mismatch,
@@ -157,6 +158,8 @@ class USVTask(ConstraintTask):
     """Batched USV episodes (see :class:`USVStreamEnv` for the semantics)."""
 
     obs_dim = USV_OBS_DIM
+    # Observations use self.aux: the *nominal* current map at the boat (what the controller is told).
+    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, _tail_parallel)
 
     def __init__(self, config: TaskConfig, n: int, *, current: str = "random", current_params: dict | None = None,
                  mass: float = 10.0, inertia: float = 1.5, domain: float = 100.0, max_turn_rate: float = 10.0,
@@ -219,19 +222,6 @@ class USVTask(ConstraintTask):
     def __setstate__(self, state: dict[str, Any]) -> None:
         super().__setstate__(state)
         self.field = get_current(self.current)
-
-    def observe(self, rows: NDArray[np.intp] | None = None) -> None:
-        # self.aux holds the *nominal* current map at the boat (what the controller is told).
-        if rows is None:
-            _observe(*self._observe_args)
-        else:
-            _observe_at(rows, *self._observe_args)
-
-    def tail(self, finish_args: tuple[Any, ...], threaded: bool) -> None:
-        if threaded:
-            _tail_parallel(self._observe_args, finish_args, 2)
-        else:
-            _tail(self._observe_args, finish_args)
 
     def impulse_mask(self) -> NDArray[np.float64]:
         return self._kick_mask
