@@ -565,6 +565,9 @@ def test_info_has_documented_params(env_id):
     env = raw(env_id, scenario="mismatch")
     _, info = env.reset(seed=0)
     np.testing.assert_array_equal(info["params"], env.unwrapped.task.params_true[0])
+    # Constant over an episode: in the reset's info only.
+    info = env.step(env.action_space.sample())[4]
+    assert "params" not in info and {"phi", "abs_phi", "state", "force", "time"} <= set(info)
 
 
 @pytest.mark.parametrize("env_id", vnhc_gym.ENV_IDS)

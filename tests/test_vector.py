@@ -376,12 +376,14 @@ def test_geometric_baseline_batched_predict() -> None:
 
 
 def test_returned_arrays_are_never_overwritten_while_held() -> None:
-    """batch_info refills an earlier step's arrays only when nobody references them any more:
-    observations, infos and views of them that a caller keeps stay as they were."""
-    env = FlockingAlignVectorEnv(4, max_episode_steps=5)
+    """The vector env refills an earlier step's arrays only when nobody references them any more:
+    observations, infos (the reset rows' ``params`` too) and views of them that a caller keeps
+    stay as they were."""
+    env = FlockingAlignVectorEnv(4, max_episode_steps=2)
     env.reset(seed=0)
     a = np.full((4, 3), 0.4, dtype=np.float32)
     kept = [env.step(a) for _ in range(3)]
+    assert "params" in kept[2][4]  # step 3 resets every sub-env (NEXT_STEP)
     snapshot = [(o.copy(), {k: np.copy(v) for k, v in info.items()}) for o, _, _, _, info in kept]
     view = env.step(a)[4]["state"][2:, 1]
     view_before = view.copy()

@@ -43,7 +43,7 @@ class ConstraintEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self.task.reset_row(0)
         if self.render_mode == "human":
             self.render()
-        return self.task.obs32[0].copy(), self.task.info(0)
+        return self.task.obs32[0].copy(), self.task.info(0, reset=True)
 
     def step(self, action: Any) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
         a = action if isinstance(action, np.ndarray) else np.asarray(action, dtype=np.float64)

@@ -278,8 +278,9 @@ class FlockingAlignEnv(ConstraintEnv):
     ## Info
 
     ``phi`` (float64, ``(N-1,)``), ``abs_phi`` (float), ``state`` (float64 ``(x.., z.., xd.., zd..)``),
-    ``force`` (applied force, N), ``params`` (true masses and g), ``time`` (s); plus
-    ``termination_reason`` when terminated.
+    ``force`` (applied force, N), ``time`` (s); plus ``termination_reason`` when terminated.
+    The info of ``reset`` also holds ``params`` (the episode's true masses and g: constant over
+    an episode, so not repeated at every step).
 
     ## Version History
 

@@ -252,12 +252,13 @@ def _add_noise(obs, rng, r, sigma, clip):
 
 @njit(cache=True)
 def finish_rows(start, stop, obs, rng, skip, sigma, clip, phi, action, status, phi_scale, action_cost, reward_clip,
-                reward, abs_phi, steps, obs32):
+                reward, abs_phi, steps, obs32, snap, state, next_state, force, o_obs, o_phi, o_abs, o_state, o_force):
     """After ``observe`` of rows ``start:stop``: observation noise (not for ``skip``-ped rows,
     whose step is discarded), reward, step counter and the float32 copy of the observation.
     Called once per row block by each environment's fused observe-and-finish kernels (``_tail``,
-    ``_tail_parallel``).  A loop over rows, not a per-row function: per-row calls, even inlined
-    ones, made this pass about 6x slower."""
+    ``_tail_parallel``).  If ``snap``, the rows' info copies follow in the same pass
+    (:func:`snapshot_rows` from ``state`` ... into ``o_*``), while the rows are still in cache.  A loop over rows,
+    not a per-row function: per-row calls, even inlined ones, made this pass about 6x slower."""
     m = phi.shape[1]
     for r in range(start, stop):
         steps[r] += 1
@@ -278,6 +279,9 @@ def finish_rows(start, stop, obs, rng, skip, sigma, clip, phi, action, status, p
         reward[r] = min(max(rew, -reward_clip), 0.0)
         for j in range(obs.shape[1]):
             obs32[r, j] = obs[r, j]
+    if snap:
+        snapshot_rows(start, stop, status, phi, abs_phi, obs32, state, next_state, force, o_obs, o_phi, o_abs, o_state,
+                      o_force)
 
 
 @njit(cache=True)
@@ -302,27 +306,40 @@ def _start_rows(rows, obs, rng, sigma, clip, phi, status, abs_phi, obs32, steps,
             obs32[r, j] = obs[r, j]
 
 
+@njit(cache=True, inline="always")
+def _copy_rows(src, dst, start, stop):
+    """``dst[start:stop] = src[start:stop]`` for C-contiguous arrays, as one flat loop (which
+    LLVM vectorises; a loop per row over a few entries does not)."""
+    d = 1
+    for k in range(1, src.ndim):
+        d *= src.shape[k]
+    s = src.reshape(-1)
+    o = dst.reshape(-1)
+    for i in range(start * d, stop * d):
+        o[i] = s[i]
+
+
 @njit(cache=True)
-def _snapshot(status, state, next_state, phi, abs_phi, force, params, obs32, o_obs, o_phi, o_abs, o_state, o_force,
-              o_params):
-    """Copies for :meth:`ConstraintTask.batch_info` into the ``o_*`` buffers (``state`` from
-    ``next_state`` where non-finite); returns the number of rows with a non-OK status."""
-    n_bad = 0
-    for r in range(status.shape[0]):
-        src = next_state if status[r] == STATUS_NONFINITE else state
-        for j in range(state.shape[1]):
-            o_state[r, j] = src[r, j]
-        for j in range(obs32.shape[1]):
-            o_obs[r, j] = obs32[r, j]
-        for j in range(phi.shape[1]):
-            o_phi[r, j] = phi[r, j]
-            o_force[r, j] = force[r, j]
-        for j in range(params.shape[1]):
-            o_params[r, j] = params[r, j]
-        o_abs[r] = abs_phi[r]
-        if status[r] != STATUS_OK:
-            n_bad += 1
-    return n_bad
+def snapshot_rows(start, stop, status, phi, abs_phi, obs32, state, next_state, force, o_obs, o_phi, o_abs, o_state,
+                  o_force):
+    """The copies of :meth:`ConstraintTask.batch_info` for rows ``start:stop`` into the ``o_*``
+    buffers (``state`` from ``next_state`` where non-finite)."""
+    _copy_rows(state, o_state, start, stop)
+    _copy_rows(obs32, o_obs, start, stop)
+    _copy_rows(phi, o_phi, start, stop)
+    _copy_rows(force, o_force, start, stop)
+    _copy_rows(abs_phi, o_abs, start, stop)
+    for r in range(start, stop):
+        if status[r] == STATUS_NONFINITE:
+            for j in range(state.shape[1]):
+                o_state[r, j] = next_state[r, j]
+
+
+@njit(cache=True)
+def _snapshot_at(rows, status, phi, abs_phi, obs32, sargs):
+    """:func:`snapshot_rows` for the rows listed in ``rows``."""
+    for i in range(rows.shape[0]):
+        snapshot_rows(rows[i], rows[i] + 1, status, phi, abs_phi, obs32, *sargs)
 
 
 class ObserveKernels(NamedTuple):
@@ -409,7 +426,11 @@ class ConstraintTask:
                               self.dv, self.phi, self.params_nominal, self.aux, *self._extra)
         self._finish_tail = (cfg.obs_noise, cfg.obs_clip, self.phi, self.action, self.status, cfg.phi_scale,
                              cfg.action_cost, cfg.reward_clip, self.reward, self.abs_phi, self.steps, self.obs32)
-        self._finish_args = (self.obs, self.rng, self._no_skip, *self._finish_tail)
+        # Sources of the info copies (snapshot_rows); with snap=False the kernels never touch the
+        # outputs, so the sources themselves stand in for them (same types, one compiled version).
+        self._snap_src = (self.state, self.next_state, self.force_applied)
+        self._no_snap = (False, *self._snap_src, self.obs32, self.phi, self.abs_phi, self.state, self.force_applied)
+        self._finish_args = (self.obs, self.rng, self._no_skip, *self._finish_tail, *self._no_snap)
         self.feedback = "open"
         self._kicks = config.impulse_prob > 0
 
@@ -513,7 +534,8 @@ class ConstraintTask:
         _start_rows(rows, self.obs, self.rng, cfg.obs_noise, cfg.obs_clip, self.phi, self.status, self.abs_phi,
                     self.obs32, self.steps, self.force, self.force_applied, self.action, self.flags)
 
-    def step(self, skip: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
+    def step(self, skip: NDArray[np.bool_] | None = None,
+             info: tuple[np.ndarray, ...] | None = None) -> NDArray[np.int64]:
         """Advance every row one control period with the forces in ``self.force``.
 
         ``skip`` marks rows whose step will be discarded (a vector env's sub-envs that are reset
@@ -521,7 +543,8 @@ class ConstraintTask:
         stay where a single env's would be.  Returns the per-row status (``STATUS_OK``,
         ``STATUS_NONFINITE``, ``STATUS_INVALID``, ...).  Rows whose state became non-finite keep
         their last finite state and observation; the non-finite state is left in
-        ``self.next_state``.
+        ``self.next_state``.  ``info`` (buffers from :meth:`info_buffers`) receives the info
+        copies of every row (as :meth:`batch_info`) in the same pass.
         """
         sk = self._no_skip if skip is None else skip
         if self._kicks:
@@ -530,7 +553,10 @@ class ConstraintTask:
             self._advance_timed()
         else:
             self._advance(*self._advance_args)
-        fargs = self._finish_args if skip is None else (self.obs, self.rng, skip, *self._finish_tail)
+        fargs: tuple[Any, ...] = self._finish_args
+        if skip is not None or info is not None:
+            snap = self._no_snap if info is None else (True, *self._snap_src, *info)
+            fargs = (self.obs, self.rng, sk, *self._finish_tail, *snap)
         self.tail(fargs, self._timed and self._threaded)
         return self.status
 
@@ -564,47 +590,66 @@ class ConstraintTask:
         self._next_probe = self._calls + self._probe_every
 
     def batch_info(self) -> tuple[NDArray[np.float32], dict[str, Any], int]:
-        """All rows at once: a copy of ``obs32``, the arrays of :meth:`info` stacked over rows
-        (same keys, dtypes and values; keep the two in sync) without ``termination_reason``,
+        """All rows at once: a copy of ``obs32``, the arrays of a step's :meth:`info` stacked over
+        rows (same keys, dtypes and values; keep the two in sync) without ``termination_reason``,
         and the number of rows with a non-OK status (those that carry a termination reason).
 
-        The copies are fresh arrays unless an earlier call's arrays are referenced by nobody
-        any more (checked with ``sys.getrefcount``), in which case those are refilled: the usual
-        training loop drops each step's infos, and reusing their memory avoids page-faulting
-        about 1 MB of new arrays per step at 4096 sub-envs.  An array (or a view of it) that
-        the caller still holds is never written again.
+        The copies go into :meth:`info_buffers`.  :meth:`step` can fill such buffers in its own
+        pass instead (``step(info=bufs)``, then :meth:`snapshot` of rows changed since, and
+        :meth:`info_from`).
         """
-        bufs = self._info_buffers()
-        o_obs, o_phi, o_abs, o_state, o_force, o_params = bufs
-        n_bad = _snapshot(self.status, self.state, self.next_state, self.phi, self.abs_phi, self.force_applied,
-                          self.params_true, self.obs32, *bufs)
-        return o_obs, {"phi": o_phi, "abs_phi": o_abs, "state": o_state, "force": o_force, "params": o_params,
-                       "time": self.steps * self.config.dt}, n_bad
+        bufs = self.info_buffers()
+        self.snapshot(None, bufs)
+        return self.info_from(bufs)
 
-    def _info_buffers(self) -> tuple[np.ndarray, ...]:
-        """A set of output arrays for :meth:`batch_info` that nobody else references."""
+    def snapshot(self, rows: NDArray[np.intp] | None, bufs: tuple[np.ndarray, ...]) -> None:
+        """Fill ``bufs`` (from :meth:`info_buffers`) with the info copies of ``rows`` (default all)."""
+        sargs = (*self._snap_src, *bufs)
+        if rows is None:
+            snapshot_rows(0, self.n, self.status, self.phi, self.abs_phi, self.obs32, *sargs)
+        else:
+            _snapshot_at(rows, self.status, self.phi, self.abs_phi, self.obs32, sargs)
+
+    def info_from(self, bufs: tuple[np.ndarray, ...]) -> tuple[NDArray[np.float32], dict[str, Any], int]:
+        """:meth:`batch_info`'s result from filled ``bufs``."""
+        o_obs, o_phi, o_abs, o_state, o_force = bufs
+        return o_obs, {"phi": o_phi, "abs_phi": o_abs, "state": o_state, "force": o_force,
+                       "time": self.steps * self.config.dt}, int(np.count_nonzero(self.status))
+
+    def info_buffers(self) -> tuple[np.ndarray, ...]:
+        """A set of output arrays for the info copies that nobody else references.
+
+        They are fresh arrays unless an earlier call's arrays are referenced by nobody any more
+        (checked with ``sys.getrefcount``), in which case those are refilled: the usual training
+        loop drops each step's infos, and reusing their memory avoids page-faulting about 1 MB
+        of new arrays per step at 4096 sub-envs.  An array (or a view of it) that the caller
+        still holds is never written again.
+        """
         pool: list[tuple[np.ndarray, ...]] = self.__dict__.setdefault("_pool", [])
         for bufs in pool:
             # References: the tuple, getrefcount's argument and the comprehension's variable.
             if all(sys.getrefcount(b) <= 3 for b in bufs):
                 return bufs
         bufs = (np.empty_like(self.obs32), np.empty_like(self.phi), np.empty_like(self.abs_phi),
-                np.empty_like(self.state), np.empty_like(self.force_applied), np.empty_like(self.params_true))
+                np.empty_like(self.state), np.empty_like(self.force_applied))
         pool.append(bufs)
         if len(pool) > _POOL_SIZE:
             del pool[0]  # held by the caller: theirs now, freed when they let go
         return bufs
 
-    def info(self, i: int) -> dict[str, Any]:
-        """The documented per-step ``info`` of row ``i`` (fresh float64 copies)."""
+    def info(self, i: int, reset: bool = False) -> dict[str, Any]:
+        """The documented ``info`` of row ``i`` (fresh float64 copies); ``reset``: the info of a
+        reset, which also holds the episode's true parameters ``params`` (constant over an
+        episode, so not copied again at every step)."""
         info = {
             "phi": self.phi[i].copy(),
             "abs_phi": float(self.abs_phi[i]),
             "state": self.state[i].copy(),
             "force": self.force_applied[i].copy(),
-            "params": self.params_true[i].copy(),
             "time": int(self.steps[i]) * self.config.dt,
         }
+        if reset:
+            info["params"] = self.params_true[i].copy()
         status = int(self.status[i])
         if status:
             info["termination_reason"] = REASONS[status]

@@ -331,8 +331,9 @@ class USVStreamEnv(ConstraintEnv):
     ## Info
 
     ``phi`` (float64 ``(1,)``), ``abs_phi``, ``state`` (``x, y, theta, xd, yd, thetad``),
-    ``force`` (N), ``params`` (true ``m, I, current_scale, c_*``), ``time``; plus
-    ``termination_reason`` when terminated.
+    ``force`` (N), ``time``; plus ``termination_reason`` when terminated. The info of ``reset``
+    also holds ``params`` (the episode's true ``m, I, current_scale, c_*``: constant over an
+    episode, so not repeated at every step).
 
     ## Version History
 

@@ -20,6 +20,7 @@ compiled kernels (:mod:`vnhc_gym.envs._random`), seeded like the single env's.
 from __future__ import annotations
 
 import inspect
+import sys
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -46,15 +47,20 @@ def accept_actions(actions: np.ndarray, skip: np.ndarray, bound: np.ndarray, for
     Returns the first row (not ``skip``-ped) with a non-finite entry and writes nothing, or -1
     after writing ``action_out[r] = clip(actions[r], -1, 1)`` (the applied action, charged by
     the action cost) and ``force[r] = action_out[r] * bound`` (zeros for skipped rows, whose
-    action is ignored).
+    action is ignored).  ``actions`` must be C-contiguous.
     """
     n, m = actions.shape
-    for r in range(n):
-        if skip[r]:
-            continue
-        for j in range(m):
-            if not np.isfinite(actions[r, j]):
-                return r
+    flat = actions.reshape(-1)  # C-contiguous (see ConstraintVectorEnv.step)
+    finite = True
+    for i in range(flat.shape[0]):  # a branch-free (vectorised) test first: x - x is NaN for NaN, inf
+        finite &= (flat[i] - flat[i]) == 0.0
+    if not finite:
+        for r in range(n):
+            if skip[r]:
+                continue
+            for j in range(m):
+                if not np.isfinite(actions[r, j]):
+                    return r
     for r in range(n):
         if skip[r]:
             for j in range(m):
@@ -236,6 +242,7 @@ class ConstraintVectorEnv(VectorEnv):
         self._unreset[rows] = False
         self._ready = not self._unreset.any()
         obs, infos = self._infos(None if mask is None else mask.copy())
+        self._add_params(infos, np.ones(n, dtype=np.bool_) if mask is None else mask.copy())
         if self.render_mode == "human":
             self.render()
         return obs, infos
@@ -255,6 +262,8 @@ class ConstraintVectorEnv(VectorEnv):
             if a.dtype.kind not in "fiub":
                 raise ValueError(f"actions must be real numbers, got dtype {a.dtype}")
             a = a.astype(np.float64)
+        if not a.flags.c_contiguous:
+            a = np.ascontiguousarray(a)
         task = self.task
         mode = self.autoreset_mode
         n_pending = self._n_pending
@@ -266,20 +275,26 @@ class ConstraintVectorEnv(VectorEnv):
         bad = accept_actions(a, pending if next_step else self._no_skip, self._bound, task.force, task.action)
         if bad >= 0:
             raise ValueError(f"actions must be finite, got row {bad}: {a[bad]!r}")
+        # The step's own pass fills the info copies (rows reset below are copied again after).
+        bufs = task.info_buffers()
         if next_step:
             rows = np.flatnonzero(pending)
             # These rows are only reset this step (their step is discarded): they draw nothing.
-            status = task.step(pending)
+            status = task.step(pending, info=bufs)
         else:
-            status = task.step()
+            status = task.step(info=bufs)
         n = self.num_envs
         terminated = np.empty(n, dtype=np.bool_)
         truncated = np.empty(n, dtype=np.bool_)
         self._n_pending = step_outcome(status, task.steps, self._max_steps, terminated, truncated, pending)
         reward = task.reward.copy()
         final: dict[str, Any] | None = None
+        reset_mask = None
         if next_step:
             task.reset_rows(rows)
+            task.snapshot(rows, bufs)
+            reset_mask = np.zeros(n, dtype=np.bool_)
+            reset_mask[rows] = True
             terminated[rows] = False
             truncated[rows] = False
             pending[rows] = False
@@ -291,10 +306,16 @@ class ConstraintVectorEnv(VectorEnv):
             final_obs = np.full(n, None, dtype=object)
             for i in rows.tolist():
                 final_obs[i] = task.obs32[i].copy()
-            final = {"final_obs": final_obs, "_final_obs": done, "final_info": self._infos(done.copy())[1],
+            # The step's info, before the reset (copies: bufs gets the reset rows' infos below).
+            step_info = task.info_from(tuple(b.copy() for b in bufs))
+            final = {"final_obs": final_obs, "_final_obs": done, "final_info": self._infos(done.copy(), step_info)[1],
                      "_final_info": done.copy()}
             task.reset_rows(rows)
-        obs, infos = self._infos()
+            task.snapshot(rows, bufs)
+            reset_mask = done
+        obs, infos = self._infos(info=task.info_from(bufs))
+        if reset_mask is not None:
+            self._add_params(infos, reset_mask)
         if final is not None:
             infos.update(final)
         if self.render_mode == "human":
@@ -353,13 +374,15 @@ class ConstraintVectorEnv(VectorEnv):
         setattr(self, name, values)
 
     # ------------------------------------------------------------------ internals
-    def _infos(self, rows: NDArray[np.bool_] | None = None) -> tuple[NDArray[np.float32], dict[str, Any]]:
+    def _infos(self, rows: NDArray[np.bool_] | None = None, info: tuple[NDArray[np.float32], dict[str, Any], int]
+               | None = None) -> tuple[NDArray[np.float32], dict[str, Any]]:
         """A copy of the observations and the batched info of all rows (or of ``rows``: zeros
-        and False masks elsewhere), as ``SyncVectorEnv`` assembles the single envs' ``info``."""
+        and False masks elsewhere), as ``SyncVectorEnv`` assembles the single envs' ``info``;
+        from ``info`` (``task.info_from``) if given, else from ``task.batch_info()``."""
         task = self.task
         n = self.num_envs
         status = task.status
-        obs, values, n_bad = task.batch_info()
+        obs, values, n_bad = task.batch_info() if info is None else info
         infos: dict[str, Any] = {}
         if rows is None:
             true = self._true
@@ -381,6 +404,23 @@ class ConstraintVectorEnv(VectorEnv):
             infos["termination_reason"] = reasons
             infos["_termination_reason"] = ended
         return obs, infos
+
+
+    def _add_params(self, infos: dict[str, Any], rows: NDArray[np.bool_]) -> None:
+        """The reset info's ``params`` (the new episodes' true parameters) for the sub-envs in
+        ``rows`` that were just reset (zeros and a False mask elsewhere, as SyncVectorEnv merges it)."""
+        buf = self.__dict__.get("_params_buf")
+        # Refill the last call's array if nobody else holds it (references: the tuple and
+        # getrefcount's argument): a fresh (n, n_params) array every step page-faults at large n.
+        if buf is not None and sys.getrefcount(buf[0]) <= 2:
+            params, last = buf
+            params[last] = 0.0
+        else:
+            params = np.zeros_like(self.task.params_true)
+        params[rows] = self.task.params_true[rows]
+        self._params_buf = (params, rows.copy())
+        infos["params"] = params
+        infos["_params"] = rows
 
 
 class FlockingAlignVectorEnv(ConstraintVectorEnv):
