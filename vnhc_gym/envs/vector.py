@@ -405,7 +405,6 @@ class ConstraintVectorEnv(VectorEnv):
             infos["_termination_reason"] = ended
         return obs, infos
 
-
     def _add_params(self, infos: dict[str, Any], rows: NDArray[np.bool_]) -> None:
         """The reset info's ``params`` (the new episodes' true parameters) for the sub-envs in
         ``rows`` that were just reset (zeros and a False mask elsewhere, as SyncVectorEnv merges it)."""
