@@ -4,6 +4,7 @@ recipe-keyed cache that lets a warm start skip sympy entirely."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import pickle
 import subprocess
@@ -15,8 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import sympy as sp
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vnhc_gym.mechanics import ConstrainedSystem, MechanicalSystem, VelocityConstraint
+from vnhc_gym.mechanics._kernels import SINCOS_MAX_ARG, pcos, psin, psincos
 from vnhc_gym.mechanics.codegen import CODEGEN_VERSION, cache_dir, recipe_key, sources_digest
 from vnhc_gym.mechanics.model import CORE_SOURCES
 from vnhc_gym.systems import CURRENTS, flocking_system, make_flocking, make_usv, usv_system
@@ -293,3 +297,58 @@ def test_open_loop_scalar_rk4_matches_numpy_rk4(system: str) -> None:
     bad[5, 0] = np.nan
     _, _, flags = model.step(bad, 0.05, u=u)
     assert flags[5] != 0 and not np.delete(flags, 5).any()
+
+
+@pytest.mark.parametrize("system", ["flocking", "usv-random"])
+def test_row_blocks_give_each_row_what_it_gets_alone(system: str) -> None:
+    """The open-loop RK4 and the phi/aux pass run rows in SIMD blocks of ``LANES`` plus a scalar
+    remainder: a row's result must not depend on its neighbours or its place, to the bit, and the
+    step's phi/aux must be what the separate ``phi``/``aux`` kernels give at the new state."""
+    from vnhc_gym.mechanics import FEEDBACK_MODES
+    from vnhc_gym.mechanics.codegen import LANES
+
+    model = make_flocking(4) if system == "flocking" else make_usv(system.split("-")[1])
+    k = model.kernels
+    rng = np.random.default_rng(11)
+    b, n, m = 2 * LANES + 5, model.n, model.m
+    s0 = rng.normal(size=(b, 2 * n))
+    p = np.tile(model.params(), (b, 1))
+    p[:, :] *= 1.0 + 0.1 * rng.uniform(size=p.shape)  # a different model per row
+    u = rng.normal(scale=20.0, size=(b, m))
+    whole, u_whole, _ = model.step(s0, 0.05, u=u, params=p, substeps=2)
+    for i in (0, 1, LANES - 1, LANES, 2 * LANES, b - 1):
+        alone, u_alone, _ = model.step(s0[i:i + 1], 0.05, u=u[i:i + 1], params=p[i:i + 1], substeps=2)
+        np.testing.assert_array_equal(whole[i], alone[0])
+        np.testing.assert_array_equal(u_whole[i], u_alone[0])
+
+    s = s0.copy()
+    pa = p[::-1].copy()  # the told model differs from the true one
+    lo, hi = np.full(m, -np.inf), np.full(m, np.inf)
+    nxt, u_out, flags = np.empty_like(s), np.empty((b, m)), np.zeros(b, np.int64)
+    phi, aux = np.empty((b, m)), np.empty((b, k.NAUX))
+    k.advance(s, p, u, np.zeros((b, k.NG)), FEEDBACK_MODES["open"], lo, hi, 0.05, 1, 1e-12, nxt, u_out, flags,
+              np.zeros((b, n)), phi, pa, aux)
+    want_phi, want_aux = np.empty_like(phi), np.empty_like(aux)
+    k.phi(s, p, want_phi)
+    k.aux(s, pa, want_aux)
+    np.testing.assert_array_equal(phi, want_phi)
+    np.testing.assert_array_equal(aux, want_aux)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.one_of(st.floats(-SINCOS_MAX_ARG, SINCOS_MAX_ARG, allow_nan=False),
+                 st.integers(-600_000, 600_000).map(lambda k: k * math.pi / 2),  # near the quadrant edges
+                 st.floats(-1.0, 1.0, allow_nan=False)))
+def test_inline_sin_cos_match_libm(x: float) -> None:
+    """The generated code's psin/pcos (inline polynomials, so that row loops vectorise) are libm's
+    sin/cos to within 2 ulp of 1 (absolute) on the documented range, and to 1 ulp near 0."""
+    s, c = float(psin(x)), float(pcos(x))
+    assert psincos(x) == (s, c)
+    assert abs(s - math.sin(x)) <= 2.3e-16 and abs(c - math.cos(x)) <= 2.3e-16
+    if abs(x) < 0.7:
+        assert abs(s - math.sin(x)) <= math.ulp(math.sin(x)) and abs(c - math.cos(x)) <= math.ulp(math.cos(x))
+
+
+@pytest.mark.parametrize("x", [math.inf, -math.inf, math.nan])
+def test_inline_sin_cos_of_non_finite_are_nan(x: float) -> None:
+    assert math.isnan(psin(x)) and math.isnan(pcos(x))

@@ -23,6 +23,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from vnhc_gym.mechanics._kernels import psincos
+
 __all__ = ["seed_states", "entropy_states", "next_u64", "uniform", "uniform_ab", "sign", "normal_pair"]
 
 _GAMMA = np.uint64(0x9E3779B97F4A7C15)
@@ -72,7 +74,8 @@ def normal_pair(state: np.ndarray, r: int) -> tuple[float, float]:
     u1 = 1.0 - uniform(state, r)  # (0, 1]: log is finite
     u2 = uniform(state, r)
     rad = math.sqrt(-2.0 * math.log(u1))
-    return rad * math.cos(2.0 * math.pi * u2), rad * math.sin(2.0 * math.pi * u2)
+    s, c = psincos(2.0 * math.pi * u2)  # inline polynomial: about half the cost of libm's two calls
+    return rad * c, rad * s
 
 
 @njit(cache=True)

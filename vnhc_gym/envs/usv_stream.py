@@ -28,6 +28,7 @@ from vnhc_gym.envs.task import (
     resolve_config,
 )
 from vnhc_gym.mechanics import FLAG_NONFINITE
+from vnhc_gym.mechanics._kernels import psincos
 from vnhc_gym.systems.currents import CURRENTS, RANDOM_PARAM_NAMES, RANDOM_WEIGHTS, get_current
 from vnhc_gym.systems.usv import USV_PRESETS, make_usv
 
@@ -54,8 +55,7 @@ def _observe_rows(start, stop, S, aux, domain, max_rate, clip, out, flags, statu
         else:
             status[r] = STATUS_OK
         th = S[r, 2]
-        c = math.cos(th)
-        s = math.sin(th)
+        s, c = psincos(th)
         xd = S[r, 3]
         yd = S[r, 4]
         c1 = aux[r, 0]
@@ -140,8 +140,7 @@ def _sample_velocity(rows, rng, current, S):
     for i in range(rows.shape[0]):
         r = rows[i]
         th = S[r, 2]
-        c = math.cos(th)
-        s = math.sin(th)
+        s, c = psincos(th)
         c1 = current[i, 0]
         c2 = current[i, 1]
         # Forward through the water, and at least 0.3 m/s forward over ground along the heading:
