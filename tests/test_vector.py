@@ -90,13 +90,17 @@ def test_vector_equals_sync_over_long_random_episodes(env_id: str, scenario: str
     _assert_same_run(vec, ref, steps=2 * length + 20, min_resets=2)
 
 
+@pytest.mark.parametrize("threaded", [True, False], ids=["fused-threaded", "serial"])
 @pytest.mark.parametrize("env_id", [FLOCK, USV])
-def test_parallel_kernel_batch_equals_sync(env_id: str) -> None:
-    """A batch large enough for the threaded kernel (>= PARALLEL_MIN_ROWS) gives the same numbers."""
+def test_parallel_kernel_batch_equals_sync(env_id: str, threaded: bool) -> None:
+    """A batch large enough for the threaded kernel (>= PARALLEL_MIN_ROWS) gives the same numbers,
+    on the fused threaded step (envs/_fused.py) and on the serial one it falls back to."""
     from vnhc_gym.envs.task import PARALLEL_MIN_ROWS
 
     n = PARALLEL_MIN_ROWS + 7
     vec = VECTOR_CLS[env_id](n, max_episode_steps=12)
+    vec.task._threaded = threaded
+    vec.task._next_probe = 10**9  # no timing probe: this path only
     ref = _sync(env_id, n, AutoresetMode.NEXT_STEP, max_episode_steps=12)
     _assert_same_run(vec, ref, steps=27, seed=5)
 

@@ -46,10 +46,10 @@ def flocking_obs_dim(n_agents: int) -> int:
 
 @njit(cache=True)
 def _observe_rows(start, stop, S, n_agents, clip, out, flags, status):
+    nf = n_agents - 1
+    vx0 = 2 * n_agents
+    vz0 = 3 * n_agents
     for r in range(start, stop):
-        nf = n_agents - 1
-        vx0 = 2 * n_agents
-        vz0 = 3 * n_agents
         status[r] = STATUS_NONFINITE if flags[r] & FLAG_NONFINITE else STATUS_OK
         lx = S[r, vx0 + nf]
         lz = S[r, vz0 + nf]
@@ -57,17 +57,16 @@ def _observe_rows(start, stop, S, n_agents, clip, out, flags, status):
         inv = 1.0 / speed
         ex = lx * inv
         ez = lz * inv
+        # Clipped as written (a second pass over the row to clip cost about 15 % of this loop).
         for b in range(nf):
             rx = S[r, vx0 + b] * inv
             rz = S[r, vz0 + b] * inv
-            out[r, 2 * b] = rx
-            out[r, 2 * b + 1] = rz
-            out[r, 2 * nf + 3 + b] = ex * rz - rx * ez  # phi_b / |v_N|^2
-        out[r, 2 * nf] = ex
-        out[r, 2 * nf + 1] = ez
-        out[r, 2 * nf + 2] = math.log(speed) / LOG_SPEED_SCALE
-        for j in range(out.shape[1]):
-            out[r, j] = min(max(out[r, j], -clip), clip)
+            out[r, 2 * b] = min(max(rx, -clip), clip)
+            out[r, 2 * b + 1] = min(max(rz, -clip), clip)
+            out[r, 2 * nf + 3 + b] = min(max(ex * rz - rx * ez, -clip), clip)  # phi_b / |v_N|^2
+        out[r, 2 * nf] = min(max(ex, -clip), clip)
+        out[r, 2 * nf + 1] = min(max(ez, -clip), clip)
+        out[r, 2 * nf + 2] = min(max(math.log(speed) / LOG_SPEED_SCALE, -clip), clip)
 
 
 @njit(cache=True)
@@ -142,7 +141,7 @@ class FlockingConfig(TaskConfig):
 class FlockingTask(ConstraintTask):
     """Batched flocking episodes (see :class:`FlockingAlignEnv` for the semantics)."""
 
-    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, _tail_parallel)
+    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, _tail_parallel, __name__)
 
     def __init__(self, config: TaskConfig, n: int, *, n_agents: int = 4, masses: Any = 2.0, g: float = 10.0,
                  preset: str | None = None) -> None:

@@ -182,7 +182,7 @@ STATUS_INVALID = 2  #: the system left its physically valid region (env-specific
 STATUS_SPIN = 3  #: the turn rate exceeded its physical limit (USV)
 REASONS = {STATUS_NONFINITE: "non_finite_state", STATUS_INVALID: "out_of_domain", STATUS_SPIN: "turn_rate_exceeded"}
 #: Batches at least this large step on numba's thread pool (when it is faster, see
-#: ConstraintTask._advance_timed).
+#: ConstraintTask._step_timed).
 PARALLEL_MIN_ROWS = 256
 #: Row blocks of the threaded kernels (one per core of the 2-core reference machine).
 N_CHUNKS = 2
@@ -347,12 +347,15 @@ class ObserveKernels(NamedTuple):
     ``all(*a)`` every row, ``at(rows, *a)`` the given rows, ``tail(a, finish_args)`` observe then
     :func:`finish_rows` every row in one pass, ``tail_parallel(a, finish_args, n_chunks)`` the
     same on numba's thread pool.  (numba cannot cache a kernel that takes another kernel as an
-    argument, so each environment module compiles its own four.)"""
+    argument, so each environment module compiles its own four.)  ``module`` names the module,
+    which also defines ``_tail_rows(start, stop, a, finish_args)`` for the fused step
+    (:mod:`vnhc_gym.envs._fused`)."""
 
     all: Any
     at: Any
     tail: Any
     tail_parallel: Any
+    module: str
 
 
 class ConstraintTask:
@@ -376,10 +379,11 @@ class ConstraintTask:
         if n >= PARALLEL_MIN_ROWS:
             _start_thread_pool()
         self._advance = self.k.advance_parallel if n >= PARALLEL_MIN_ROWS else self.k.advance
+        self._fused = self._fused_kernel()
         self._extra = (N_CHUNKS,) if n >= PARALLEL_MIN_ROWS else ()
-        # Big batches time the threaded and the serial kernel now and then and run the faster one
+        # Big batches time the threaded and the serial step now and then and run the faster one
         # (they compute the same numbers): on a machine with more busy threads than cores the
-        # threaded one can be many times slower.  See _advance_timed.
+        # threaded one can be many times slower.  See _step_timed.
         self._timed = n >= PARALLEL_MIN_ROWS
         self._kernel_s = [0.0, 0.0]  # running mean seconds of [serial, threaded]
         self._threaded = True
@@ -439,6 +443,7 @@ class ConstraintTask:
         state = self.__dict__.copy()
         state["k"] = None
         state["_advance"] = None
+        state["_fused"] = None
         state.pop("_pool", None)  # reusable info buffers: not part of the state
         return state
 
@@ -446,6 +451,15 @@ class ConstraintTask:
         self.__dict__.update(state)
         self.k = self.model.kernels
         self._advance = self.k.advance_parallel if self.n >= PARALLEL_MIN_ROWS else self.k.advance
+        self._fused = self._fused_kernel()
+
+    def _fused_kernel(self) -> Any:
+        """The threaded advance-then-tail kernel (:mod:`vnhc_gym.envs._fused`), for big batches."""
+        if self.n < PARALLEL_MIN_ROWS:
+            return None
+        from vnhc_gym.envs._fused import fused_step
+
+        return fused_step(self.k, self.observe_kernels.module)
 
     def set_feedback(self, feedback: str = "open", gains: Any = 1.0) -> None:
         """Run the geometric law inside the integrator, on top of the held force.
@@ -468,7 +482,8 @@ class ConstraintTask:
     # ------------------------------------------------------------------ hooks
     def sample_rows(self, rows: NDArray[np.intp]) -> None:
         """Draw new episodes for ``rows`` from their streams (``self.rng``): write
-        ``self.state[rows]``, ``self.params_true[rows]`` and ``self.params_nominal[rows]``."""
+        ``self.state[rows]``, ``self.params_true[rows]`` and ``self.params_nominal[rows]``
+        (``self.aux[rows]`` may be used as scratch: :meth:`reset_rows` refills it)."""
         raise NotImplementedError
 
     def observe(self, rows: NDArray[np.intp] | None = None) -> None:
@@ -522,13 +537,8 @@ class ConstraintTask:
             self.seed_rows(rows, [None] * rows.size)
         self.sample_rows(rows)
         self.flags[rows] = 0
-        state, p_true, p_nom = self.state[rows], self.params_true[rows], self.params_nominal[rows]
-        phi = np.empty((rows.size, self.phi.shape[1]))
-        aux = np.empty((rows.size, self.aux.shape[1]))
-        self.k.phi(state, p_true, phi)
-        self.k.aux(state, p_nom, aux)
-        self.phi[rows] = phi
-        self.aux[rows] = aux
+        self.k.phi_at(rows, self.state, self.params_true, self.phi)
+        self.k.aux_at(rows, self.state, self.params_nominal, self.aux)
         self.observe(rows)
         cfg = self.config
         _start_rows(rows, self.obs, self.rng, cfg.obs_noise, cfg.obs_clip, self.phi, self.status, self.abs_phi,
@@ -549,19 +559,20 @@ class ConstraintTask:
         sk = self._no_skip if skip is None else skip
         if self._kicks:
             _fill_kicks(self.dv, self.rng, sk, self.config.impulse_prob, self.impulse_scale, self.impulse_mask())
-        if self._timed:
-            self._advance_timed()
-        else:
-            self._advance(*self._advance_args)
         fargs: tuple[Any, ...] = self._finish_args
         if skip is not None or info is not None:
             snap = self._no_snap if info is None else (True, *self._snap_src, *info)
             fargs = (self.obs, self.rng, sk, *self._finish_tail, *snap)
-        self.tail(fargs, self._timed and self._threaded)
+        if self._timed:
+            self._step_timed(fargs)
+        else:
+            self._advance(*self._advance_args)
+            self.tail(fargs, False)
         return self.status
 
-    def _advance_timed(self) -> None:
-        """Run the faster of the threaded and the serial kernel (big batches only).
+    def _step_timed(self, fargs: tuple[Any, ...]) -> None:
+        """Advance and tail with the faster of the threaded (fused) and the serial kernels (big
+        batches only).
 
         The current choice's running time is tracked; every ``_probe_every`` calls the other
         kernel runs once instead, and becomes the choice if it was faster.  A losing probe doubles
@@ -573,9 +584,10 @@ class ConstraintTask:
         threaded = self._threaded != probe
         t0 = perf_counter()
         if threaded:
-            self.k.advance_parallel(*self._advance_args)
+            self._fused(self._advance_args[:-1], self._observe_args, fargs, N_CHUNKS)
         else:
             self.k.advance(*self._advance_args[:-1])
+            self.tail(fargs, False)
         elapsed = perf_counter() - t0
         mean = self._kernel_s
         if not probe:

@@ -135,14 +135,14 @@ def _sample_params(rows, rng, nominal, amp_idx, amp_w, mismatch_mask, delta, pre
 
 @njit(cache=True)
 def _sample_velocity(rows, rng, current, S):
-    """Second half: the start velocity, from the true current ``current[i] = (C1, C2, ...)`` at
-    the start position of ``rows[i]``."""
+    """Second half: the start velocity, from the true current ``current[r] = (C1, C2, ...)`` at
+    the start position of row ``r`` in ``rows``."""
     for i in range(rows.shape[0]):
         r = rows[i]
         th = S[r, 2]
         s, c = psincos(th)
-        c1 = current[i, 0]
-        c2 = current[i, 1]
+        c1 = current[r, 0]
+        c2 = current[r, 1]
         # Forward through the water, and at least 0.3 m/s forward over ground along the heading:
         # on the manifold I thetadd = -m thetad v_forward, unstable when the boat goes backwards.
         forward = max(uniform_ab(rng, r, 0.5, 1.5), 0.3 - (c1 * c + c2 * s))
@@ -158,7 +158,7 @@ class USVTask(ConstraintTask):
 
     obs_dim = USV_OBS_DIM
     # Observations use self.aux: the *nominal* current map at the boat (what the controller is told).
-    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, _tail_parallel)
+    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, _tail_parallel, __name__)
 
     def __init__(self, config: TaskConfig, n: int, *, current: str = "random", current_params: dict | None = None,
                  mass: float = 10.0, inertia: float = 1.5, domain: float = 100.0, max_turn_rate: float = 10.0,
@@ -209,9 +209,10 @@ class USVTask(ConstraintTask):
                        self.params_true, self.params_nominal)
         if self.preset is None:
             # The start velocity depends on the true current at the start position.
-            aux = np.empty((rows.size, self.aux.shape[1]))
-            self.k.aux(self.state[rows], self.params_true[rows], aux)
-            _sample_velocity(rows, self.rng, aux, self.state)
+            # The true current goes into self.aux's rows for now; reset_rows then overwrites them
+            # with the nominal model's outputs.
+            self.k.aux_at(rows, self.state, self.params_true, self.aux)
+            _sample_velocity(rows, self.rng, self.aux, self.state)
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()

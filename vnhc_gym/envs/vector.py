@@ -46,8 +46,9 @@ def accept_actions(actions: np.ndarray, skip: np.ndarray, bound: np.ndarray, for
 
     Returns the first row (not ``skip``-ped) with a non-finite entry and writes nothing, or -1
     after writing ``action_out[r] = clip(actions[r], -1, 1)`` (the applied action, charged by
-    the action cost) and ``force[r] = action_out[r] * bound`` (zeros for skipped rows, whose
-    action is ignored).  ``actions`` must be C-contiguous.
+    the action cost) and ``force[r] = action_out[r] * bound[r]`` (zeros for skipped rows, whose
+    action is ignored).  ``actions``, ``bound`` (the force bound tiled over the rows), ``force``
+    and ``action_out`` have the same shape and are C-contiguous.
     """
     n, m = actions.shape
     flat = actions.reshape(-1)  # C-contiguous (see ConstraintVectorEnv.step)
@@ -61,16 +62,19 @@ def accept_actions(actions: np.ndarray, skip: np.ndarray, bound: np.ndarray, for
             for j in range(m):
                 if not np.isfinite(actions[r, j]):
                     return r
+    # Flat loops over all entries (vectorised); a loop per row over m entries is not.
+    bd = bound.reshape(-1)
+    fo = force.reshape(-1)
+    ao = action_out.reshape(-1)
+    for i in range(flat.shape[0]):
+        a = min(max(flat[i], -1.0), 1.0)
+        fo[i] = a * bd[i]
+        ao[i] = a
     for r in range(n):
         if skip[r]:
             for j in range(m):
-                force[r, j] = 0.0
-                action_out[r, j] = 0.0
-        else:
-            for j in range(m):
-                a = min(max(actions[r, j], -1.0), 1.0)
-                force[r, j] = a * bound[j]
-                action_out[r, j] = a
+                fo[r * m + j] = 0.0
+                ao[r * m + j] = 0.0
     return -1
 
 
@@ -185,7 +189,7 @@ class ConstraintVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
         self._act_shape = (n, *self.single_action_space.shape)  # type: ignore[misc]
-        self._bound = self.task.force_bound
+        self._bound = np.tile(self.task.force_bound, (n, 1))  # per entry: accept_actions' flat loop
         self._dt = self.task.config.dt
         self._unreset = np.ones(n, dtype=np.bool_)  # sub-envs never reset yet (stepping them is an error)
         self._ready = False
@@ -409,15 +413,17 @@ class ConstraintVectorEnv(VectorEnv):
         """The reset info's ``params`` (the new episodes' true parameters) for the sub-envs in
         ``rows`` that were just reset (zeros and a False mask elsewhere, as SyncVectorEnv merges it)."""
         buf = self.__dict__.get("_params_buf")
+        idx = np.flatnonzero(rows)
         # Refill the last call's array if nobody else holds it (references: the tuple and
         # getrefcount's argument): a fresh (n, n_params) array every step page-faults at large n.
+        # Integer rows, not the mask: a few reset rows of a big batch are a few row copies.
         if buf is not None and sys.getrefcount(buf[0]) <= 2:
             params, last = buf
             params[last] = 0.0
         else:
             params = np.zeros_like(self.task.params_true)
-        params[rows] = self.task.params_true[rows]
-        self._params_buf = (params, rows.copy())
+        params[idx] = self.task.params_true[idx]
+        self._params_buf = (params, idx)
         infos["params"] = params
         infos["_params"] = rows
 

@@ -33,7 +33,7 @@ if TYPE_CHECKING:  # sympy is imported by the functions that generate code, neve
 
 __all__ = ["cache_dir", "generate_source", "load_module", "recipe_key", "sources_digest", "CODEGEN_VERSION"]
 
-CODEGEN_VERSION = "16"
+CODEGEN_VERSION = "17"
 _LOCK = threading.Lock()
 _LOADED: dict[str, ModuleType] = {}
 
@@ -658,4 +658,18 @@ def energy(S, P, out):
 @njit(cache=True)
 def aux(S, P, out):
     _aux_rows(0, S.shape[0], S, P, out)
+
+
+@njit(cache=True)
+def phi_at(rows, S, P, out):
+    """phi of the listed rows of the full arrays S, P into out[rows] (a reset's rows)."""
+    for i in range(rows.shape[0]):
+        _phi_rows(rows[i], rows[i] + 1, S, P, out)
+
+
+@njit(cache=True)
+def aux_at(rows, S, P, out):
+    """The extra outputs of the listed rows into out[rows], as phi_at."""
+    for i in range(rows.shape[0]):
+        _aux_rows(rows[i], rows[i] + 1, S, P, out)
 '''
