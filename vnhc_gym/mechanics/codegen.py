@@ -4,7 +4,9 @@ Why code generation: the law and the RK4 step are a few dozen flops per system, 
 implementation is dominated by per-call overhead (about 1 us per array op).  Emitting the
 common-subexpression-eliminated formulas as straight-line scalar code and compiling it with
 numba gives one fused kernel per batch: microseconds at batch 1, millions of steps per second
-in a batch.  The generated file is written once to a cache folder keyed by a hash of the
+in a batch.  The open-loop RK4 step and the batched ``phi`` and extra outputs run over blocks of
+``LANES`` rows as a loop over lanes that LLVM turns into SIMD code (see :func:`_open_rows_body`).
+The generated file is written once to a cache folder keyed by a hash of the
 symbolic input (or, for the shipped systems, of a *recipe* such as ``("flocking", 4)`` plus the
 source text of the files that define it, see :func:`recipe_key`), and numba caches its machine
 code beside it, so a new process neither re-derives nor recompiles.  Only code generation
