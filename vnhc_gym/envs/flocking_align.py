@@ -8,7 +8,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from numba import njit, prange
+from numba import njit
 from numpy.typing import NDArray
 
 from vnhc_gym.envs._random import sign, uniform_ab
@@ -93,12 +93,6 @@ def _tail(oargs, fargs):
     _tail_rows(0, oargs[0].shape[0], oargs, fargs)
 
 
-@njit(cache=True, parallel=True)
-def _tail_parallel(oargs, fargs, n_chunks):
-    n = oargs[0].shape[0]
-    for c in prange(n_chunks):
-        _tail_rows(c * n // n_chunks, (c + 1) * n // n_chunks, oargs, fargs)
-
 
 @njit(cache=True)
 def _sample(rows, rng, preset_state, use_preset, n_agents, nominal, mismatch_mask, delta, S, PT, PN):
@@ -141,7 +135,7 @@ class FlockingConfig(TaskConfig):
 class FlockingTask(ConstraintTask):
     """Batched flocking episodes (see :class:`FlockingAlignEnv` for the semantics)."""
 
-    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, _tail_parallel, __name__)
+    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, __name__)
 
     def __init__(self, config: TaskConfig, n: int, *, n_agents: int = 4, masses: Any = 2.0, g: float = 10.0,
                  preset: str | None = None) -> None:

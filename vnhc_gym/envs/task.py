@@ -256,7 +256,7 @@ def finish_rows(start, stop, obs, rng, skip, sigma, clip, phi, action, status, p
     """After ``observe`` of rows ``start:stop``: observation noise (not for ``skip``-ped rows,
     whose step is discarded), reward, step counter and the float32 copy of the observation.
     Called once per row block by each environment's fused observe-and-finish kernels (``_tail``,
-    ``_tail_parallel``).  If ``snap``, the rows' info copies follow in the same pass
+    ``_fused``).  If ``snap``, the rows' info copies follow in the same pass
     (:func:`snapshot_rows` from ``state`` ... into ``o_*``), while the rows are still in cache.  A loop over rows,
     not a per-row function: per-row calls, even inlined ones, made this pass about 6x slower."""
     m = phi.shape[1]
@@ -345,16 +345,14 @@ def _snapshot_at(rows, status, phi, abs_phi, obs32, sargs):
 class ObserveKernels(NamedTuple):
     """An environment's compiled observation kernels, all over ``(*observe_args)``:
     ``all(*a)`` every row, ``at(rows, *a)`` the given rows, ``tail(a, finish_args)`` observe then
-    :func:`finish_rows` every row in one pass, ``tail_parallel(a, finish_args, n_chunks)`` the
-    same on numba's thread pool.  (numba cannot cache a kernel that takes another kernel as an
-    argument, so each environment module compiles its own four.)  ``module`` names the module,
-    which also defines ``_tail_rows(start, stop, a, finish_args)`` for the fused step
-    (:mod:`vnhc_gym.envs._fused`)."""
+    :func:`finish_rows` every row in one pass.  (numba cannot cache a kernel that takes another
+    kernel as an argument, so each environment module compiles its own.)  ``module`` names the
+    module, which also defines ``_tail_rows(start, stop, a, finish_args)``, the row-block form
+    of ``tail`` that the threaded step fuses with the system's RK4 (:mod:`vnhc_gym.envs._fused`)."""
 
     all: Any
     at: Any
     tail: Any
-    tail_parallel: Any
     module: str
 
 
@@ -378,7 +376,6 @@ class ConstraintTask:
         self.k = model.kernels
         if n >= PARALLEL_MIN_ROWS:
             _start_thread_pool()
-        self._advance = self.k.advance_parallel if n >= PARALLEL_MIN_ROWS else self.k.advance
         self._fused = self._fused_kernel()
         self._extra = (N_CHUNKS,) if n >= PARALLEL_MIN_ROWS else ()
         # Big batches time the threaded and the serial step now and then and run the faster one
@@ -442,7 +439,6 @@ class ConstraintTask:
         # Compiled kernels are module functions of a generated module: re-bound on unpickle.
         state = self.__dict__.copy()
         state["k"] = None
-        state["_advance"] = None
         state["_fused"] = None
         state.pop("_pool", None)  # reusable info buffers: not part of the state
         return state
@@ -450,7 +446,6 @@ class ConstraintTask:
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         self.k = self.model.kernels
-        self._advance = self.k.advance_parallel if self.n >= PARALLEL_MIN_ROWS else self.k.advance
         self._fused = self._fused_kernel()
 
     def _fused_kernel(self) -> Any:
@@ -495,13 +490,10 @@ class ConstraintTask:
         else:
             k.at(rows, *self._observe_args)
 
-    def tail(self, finish_args: tuple[Any, ...], threaded: bool) -> None:
+    def tail(self, finish_args: tuple[Any, ...]) -> None:
         """:meth:`observe` then :func:`finish_rows` for every row, fused in one compiled loop
-        (on numba's thread pool if ``threaded``)."""
-        if threaded:
-            self.observe_kernels.tail_parallel(self._observe_args, finish_args, N_CHUNKS)
-        else:
-            self.observe_kernels.tail(self._observe_args, finish_args)
+        (the serial step; the threaded one runs it per row block with the RK4, ``_step_timed``)."""
+        self.observe_kernels.tail(self._observe_args, finish_args)
 
     def impulse_mask(self) -> Array:
         """``(n,)`` weights of the velocity entries that impulses kick (0 = never)."""
@@ -566,8 +558,8 @@ class ConstraintTask:
         if self._timed:
             self._step_timed(fargs)
         else:
-            self._advance(*self._advance_args)
-            self.tail(fargs, False)
+            self.k.advance(*self._advance_args)
+            self.tail(fargs)
         return self.status
 
     def _step_timed(self, fargs: tuple[Any, ...]) -> None:
@@ -587,7 +579,7 @@ class ConstraintTask:
             self._fused(self._advance_args[:-1], self._observe_args, fargs, N_CHUNKS)
         else:
             self.k.advance(*self._advance_args[:-1])
-            self.tail(fargs, False)
+            self.tail(fargs)
         elapsed = perf_counter() - t0
         mean = self._kernel_s
         if not probe:

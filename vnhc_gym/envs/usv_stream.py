@@ -8,7 +8,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from numba import njit, prange
+from numba import njit
 from numpy.typing import NDArray
 
 from vnhc_gym.envs._random import normal_pair, sign, uniform_ab
@@ -100,12 +100,6 @@ def _tail(oargs, fargs):
     _tail_rows(0, oargs[0].shape[0], oargs, fargs)
 
 
-@njit(cache=True, parallel=True)
-def _tail_parallel(oargs, fargs, n_chunks):
-    n = oargs[0].shape[0]
-    for c in prange(n_chunks):
-        _tail_rows(c * n // n_chunks, (c + 1) * n // n_chunks, oargs, fargs)
-
 
 @njit(cache=True)
 def _sample_params(rows, rng, nominal, amp_idx, amp_w, mismatch_mask, delta, preset_state, use_preset, S, PT, PN):
@@ -158,7 +152,7 @@ class USVTask(ConstraintTask):
 
     obs_dim = USV_OBS_DIM
     # Observations use self.aux: the *nominal* current map at the boat (what the controller is told).
-    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, _tail_parallel, __name__)
+    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, __name__)
 
     def __init__(self, config: TaskConfig, n: int, *, current: str = "random", current_params: dict | None = None,
                  mass: float = 10.0, inertia: float = 1.5, domain: float = 100.0, max_turn_rate: float = 10.0,
