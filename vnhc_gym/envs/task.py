@@ -409,7 +409,8 @@ class ConstraintTask:
         self.status = np.zeros(n, dtype=np.int64)
         self.flags = np.zeros(n, dtype=np.int64)
         self.steps = np.zeros(n, dtype=np.int64)
-        self.dv = np.zeros((n, model.n))
+        # Velocity kicks of the impulse scenario; no rows when impulses are off (advance skips them).
+        self.dv = np.zeros((n if config.impulse_prob > 0 else 0, model.n))
         self._gains = np.zeros((n, model.n_gains))
         self._lo = -self.force_bound
         self._hi = self.force_bound.copy()

@@ -35,7 +35,7 @@ if TYPE_CHECKING:  # sympy is imported by the functions that generate code, neve
 
 __all__ = ["cache_dir", "generate_source", "load_module", "recipe_key", "sources_digest", "CODEGEN_VERSION"]
 
-CODEGEN_VERSION = "17"
+CODEGEN_VERSION = "18"
 _LOCK = threading.Lock()
 _LOADED: dict[str, ModuleType] = {}
 
@@ -589,9 +589,11 @@ def _aux_rows(start, stop, S, P, out):
 @njit(cache=True)
 def _advance_rows(start, stop, S, P, U, K, mode, lo, hi, dt, substeps, tol, NEXT, u_out, flags, DV, PHI, PA, AUX):
     _rows(mode, start, stop, S, P, PA, U, K, lo, hi, dt, substeps, tol, NEXT, u_out, flags)
+    kicks = DV.shape[0] > 0  # DV with no rows: no kicks (not read at all)
     for r in range(start, stop):
-        for j in range(N):
-            NEXT[r, N + j] += DV[r, j]
+        if kicks:
+            for j in range(N):
+                NEXT[r, N + j] += DV[r, j]
         if (flags[r] & FLAG_NONFINITE) == 0:
             for j in range(2 * N):
                 S[r, j] = NEXT[r, j]
@@ -601,7 +603,7 @@ def _advance_rows(start, stop, S, P, U, K, mode, lo, hi, dt, substeps, tol, NEXT
 
 @njit(cache=True)
 def advance(S, P, U, K, mode, lo, hi, dt, substeps, tol, NEXT, u_out, flags, DV, PHI, PA, AUX):
-    """One environment step for all rows: rk4 into NEXT, add velocity kicks DV (B, N), accept
+    """One environment step for all rows: rk4 into NEXT, add velocity kicks DV (B, N; or (0, N): none), accept
     finite rows into S (rows with FLAG_NONFINITE keep their old state), then phi(S, P) -> PHI and
     the extra outputs aux(S, PA) -> AUX.  P drives the dynamics; PA (e.g. the nominal model a
     controller is told) is used by the in-loop law (modes 1, 2) and the extra outputs."""
