@@ -92,25 +92,22 @@ def _sincos_kernel(x: float) -> tuple[float, float, int]:
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def psin(x: float) -> float:
-    """``sin(x)`` as inline, vectorisable code (see the note above ``SINCOS_MAX_ARG``)."""
-    s, c, q = _sincos_kernel(x)
-    v = c if q & 1 else s
-    return -v if q & 2 else v
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def pcos(x: float) -> float:
-    """``cos(x)`` as inline, vectorisable code (see the note above ``SINCOS_MAX_ARG``)."""
-    s, c, q = _sincos_kernel(x)
-    v = -s if q & 1 else c
-    return -v if q & 2 else v
-
-
-@njit(cache=True, inline="always", error_model="numpy")
 def psincos(x: float) -> tuple[float, float]:
-    """``(sin(x), cos(x))`` with one shared reduction; the same values as ``psin``, ``pcos``."""
+    """``(sin(x), cos(x))`` as inline, vectorisable code with one shared reduction (see the note
+    above ``SINCOS_MAX_ARG``)."""
     s, c, q = _sincos_kernel(x)
     vs = c if q & 1 else s
     vc = -s if q & 1 else c
     return (-vs if q & 2 else vs), (-vc if q & 2 else vc)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def psin(x: float) -> float:
+    """``sin(x)``: ``psincos(x)[0]`` (inlined, the unused half is optimised away)."""
+    return psincos(x)[0]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def pcos(x: float) -> float:
+    """``cos(x)``: ``psincos(x)[1]``."""
+    return psincos(x)[1]

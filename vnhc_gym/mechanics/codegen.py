@@ -139,7 +139,7 @@ def _literal(value: float) -> str:
     return repr(value) if math.isfinite(value) else f"float({str(value)!r})"
 
 
-#: Rows per block of the generated lane kernels (``_rows_open``, ``_post_rows``).  A block's
+#: Rows per block of the generated lane kernels (``_rows_open``, ``_phi_rows``, ``_aux_rows``).  A block's
 #: inputs are copied into one scratch array laid out variable-major with this constant stride, so
 #: that LLVM can prove the lanes independent and vectorise the loop over them (about 3x for the
 #: USV's RK4 with AVX2).  32 rows x ~40 variables stay in L1.
@@ -151,6 +151,17 @@ def _lane_loads(names: list[str], sources: list[str], first: int) -> tuple[list[
     gather = [f"buf[{(first + k) * LANES} + l] = {src}" for k, src in enumerate(sources)]
     loads = [f"{name} = buf[{(first + k) * LANES} + l]" for k, name in enumerate(names)]
     return gather, loads
+
+
+def _block_head(n_slots: int, gathers: list[str]) -> list[str]:
+    """Opening lines of a lane kernel: the scratch array, the loop over row blocks and the gather
+    of a block's inputs (``gathers``, from :func:`_lane_loads`) into it."""
+    return [f"buf = np.empty({max(1, n_slots) * LANES})",
+            f"for b0 in range(start, stop, {LANES}):",
+            f"    nl = min({LANES}, stop - b0)",
+            "    for l in range(nl):",
+            "        r = b0 + l",
+            *(["        " + g for g in gathers] or ["        pass"])]
 
 
 def _open_rows_body(accel: list[sp.Expr], state_syms: list[sp.Symbol], param_syms: list[sp.Symbol], m: int) -> str:
@@ -175,12 +186,7 @@ def _open_rows_body(accel: list[sp.Expr], state_syms: list[sp.Symbol], param_sym
     gp, lp = _lane_loads([f"p_{i}" for i in used_p], [f"P[r, {i}]" for i in used_p], n2)
     gu, lu = _lane_loads([f"u_{a}" for a in range(m)], [f"min(max(U[r, {a}], lo[{a}]), hi[{a}])" for a in range(m)],
                          n2 + len(used_p))
-    lines = [f"buf = np.empty({(n2 + len(used_p) + m) * LANES})",
-             f"for b0 in range(start, stop, {LANES}):",
-             f"    nl = min({LANES}, stop - b0)",
-             "    for l in range(nl):",
-             "        r = b0 + l"]
-    lines += ["        " + g for g in gx + gp + gu]
+    lines = _block_head(n2 + len(used_p) + m, gx + gp + gu)
     lines += ["    for _ in range(substeps):",
               "        for l in range(nl):"]
     lines += ["            " + ld for ld in lx + lp + lu]
@@ -220,12 +226,7 @@ def _lane_rows_body(exprs: list[sp.Expr], state_syms: list[sp.Symbol], param_sym
     gs, ls = _lane_loads([f"s_{i}" for i in used_s], [f"S[r, {i}]" for i in used_s], 0)
     gp, lp = _lane_loads([f"p_{i}" for i in used_p], [f"P[r, {i}]" for i in used_p], len(used_s))
     out0 = len(used_s) + len(used_p)
-    lines = [f"buf = np.empty({(out0 + len(exprs)) * LANES})",
-             f"for b0 in range(start, stop, {LANES}):",
-             f"    nl = min({LANES}, stop - b0)",
-             "    for l in range(nl):",
-             "        r = b0 + l"]
-    lines += ["        " + g for g in gs + gp] or ["        pass"]
+    lines = _block_head(out0 + len(exprs), gs + gp)
     lines += ["    for l in range(nl):"]
     lines += ["        " + ld for ld in ls + lp]
     lines += ["    " + line for line in _lane_trig(_body(part, subs, "")).split("\n") if line.strip() != "pass"]
