@@ -105,6 +105,37 @@ def test_parallel_kernel_batch_equals_sync(env_id: str, threaded: bool) -> None:
     _assert_same_run(vec, ref, steps=27, seed=5)
 
 
+@pytest.mark.parametrize("threaded", [True, False], ids=["fused-threaded", "serial"])
+@pytest.mark.parametrize("n", [N, 263], ids=["small", "big"])
+def test_rows_that_overflow_in_rk4_equal_single_envs(n: int, threaded: bool) -> None:
+    """Sub-envs whose RK4 step overflows end with ``non_finite_state`` and report the non-finite
+    state in ``info["state"]`` (the single env's documented behaviour), while their neighbours go
+    on; the step writes its result straight into the info buffer, so this is the branch to check."""
+    vec = VECTOR_CLS[USV](n, max_episode_steps=50)
+    vec.task._threaded = threaded
+    vec.task._next_probe = 10**9
+    ref = _sync(USV, n, AutoresetMode.NEXT_STEP, max_episode_steps=50)
+    vec.reset(seed=7)
+    ref.reset(seed=7)
+    bad = [1, n - 1]
+    for i in bad:  # xd, thetad: x + dt xd stays finite, the current terms overflow
+        for task, row in ((vec.task, i), (ref.envs[i].unwrapped.task, 0)):
+            task.state[row, 3] = task.state[row, 5] = 1e308
+    acts = _actions(np.random.default_rng(0), 4, n, 1)
+    for t in range(4):
+        out_a, out_b = vec.step(acts[t]), ref.step(acts[t])
+        for a, b in zip(out_a[:4], out_b[:4], strict=True):
+            np.testing.assert_array_equal(a, b, err_msg=f"step {t}")
+        assert out_a[4].keys() == out_b[4].keys()
+        for key in out_a[4]:  # NaN-aware (data_equivalence compares with ==)
+            np.testing.assert_array_equal(out_a[4][key], out_b[4][key], err_msg=f"step {t}: {key}")
+        if t == 0:
+            assert list(np.flatnonzero(out_a[2])) == bad
+            assert all(out_a[4]["termination_reason"][i] == "non_finite_state" for i in bad)
+            assert not np.all(np.isfinite(out_a[4]["state"][bad])) and np.all(np.isfinite(vec.task.state))
+            np.testing.assert_array_equal(vec.task.next_state[bad], out_a[4]["state"][bad])
+
+
 def test_disabled_mode_with_reset_mask_equals_sync() -> None:
     vec = FlockingAlignVectorEnv(N, max_episode_steps=7, autoreset_mode="Disabled", scenario="noisy")
     ref = _sync(FLOCK, N, AutoresetMode.DISABLED, max_episode_steps=7, scenario="noisy")

@@ -128,6 +128,17 @@ def _sample(rows, rng, preset_state, use_preset, n_agents, nominal, mismatch_mas
         draw_mismatch(rng, r, nominal, mismatch_mask, delta, PT[r])
 
 
+#: Stages of :func:`_draw_rows` (see :class:`~vnhc_gym.envs.task.ObserveKernels`): one, the start
+#: state needs no output of the model.
+DRAW_STAGES = 1
+
+
+@njit(cache=True)
+def _draw_rows(rows, stage, dargs, outputs):
+    """New episodes for ``rows`` (stage 0 only): :func:`_sample` on ``dargs``."""
+    _sample(rows, *dargs)
+
+
 class FlockingConfig(TaskConfig):
     """:class:`TaskConfig` with the flocking defaults (``force_bound`` 250 N, impulses 1 m/s)."""
 
@@ -135,7 +146,7 @@ class FlockingConfig(TaskConfig):
 class FlockingTask(ConstraintTask):
     """Batched flocking episodes (see :class:`FlockingAlignEnv` for the semantics)."""
 
-    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, __name__)
+    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, __name__, _draw_rows, DRAW_STAGES)
 
     def __init__(self, config: TaskConfig, n: int, *, n_agents: int = 4, masses: Any = 2.0, g: float = 10.0,
                  preset: str | None = None) -> None:
@@ -167,10 +178,9 @@ class FlockingTask(ConstraintTask):
         self._kick_mask[self.n_agents: 2 * self.n_agents - 1] = 1.0  # follower zd
         self._observe_args = (self.state, self.n_agents, config.obs_clip, self.obs, self.flags, self.status)
         self._preset_state = FLOCKING_PRESETS[preset].state() if preset is not None else np.zeros(4 * self.n_agents)
-
-    def sample_rows(self, rows: NDArray[np.intp]) -> None:
-        _sample(rows, self.rng, self._preset_state, self.preset is not None, self.n_agents, self.nominal,
-                self._mismatch_mask, self.config.param_mismatch, self.state, self.params_true, self.params_nominal)
+        self._draw_args = (self.rng, self._preset_state, self.preset is not None, self.n_agents, self.nominal,
+                           self._mismatch_mask, config.param_mismatch, self.state, self.params_true,
+                           self.params_nominal)
 
     def impulse_mask(self) -> NDArray[np.float64]:
         return self._kick_mask

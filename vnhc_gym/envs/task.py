@@ -186,6 +186,8 @@ REASONS = {STATUS_NONFINITE: "non_finite_state", STATUS_INVALID: "out_of_domain"
 PARALLEL_MIN_ROWS = 256
 #: Row blocks of the threaded kernels (one per core of the 2-core reference machine).
 N_CHUNKS = 2
+#: Position of ``NEXT`` (where RK4 writes) in ConstraintTask._advance_args (the system's ``advance``).
+_NEXT = 10
 #: Sets of info arrays kept for reuse by ConstraintTask.batch_info (see there).
 _POOL_SIZE = 3
 #: First and largest interval (steps) between timing probes of the kernel not in use.
@@ -252,12 +254,13 @@ def _add_noise(obs, rng, r, sigma, clip):
 
 @njit(cache=True)
 def finish_rows(start, stop, obs, rng, skip, sigma, clip, phi, action, status, phi_scale, action_cost, reward_clip,
-                reward, abs_phi, steps, obs32, snap, state, next_state, force, o_obs, o_phi, o_abs, o_state, o_force):
+                reward, abs_phi, steps, obs32, snap, dt, state, next_state, force, o_obs, o_phi, o_abs, o_state, o_force,
+                o_time):
     """After ``observe`` of rows ``start:stop``: observation noise (not for ``skip``-ped rows,
     whose step is discarded), reward, step counter and the float32 copy of the observation.
     Called once per row block by each environment's fused observe-and-finish kernels (``_tail``,
-    ``_fused``).  If ``snap``, the rows' info copies follow in the same pass
-    (:func:`snapshot_rows` from ``state`` ... into ``o_*``), while the rows are still in cache.  A loop over rows,
+    ``_fused``).  If ``snap`` (``SNAP_COPY`` or ``SNAP_STEPPED``, see :func:`snapshot_rows`), the rows'
+    info copies follow in the same pass, while the rows are still in cache.  A loop over rows,
     not a per-row function: per-row calls, even inlined ones, made this pass about 6x slower."""
     m = phi.shape[1]
     for r in range(start, stop):
@@ -280,8 +283,8 @@ def finish_rows(start, stop, obs, rng, skip, sigma, clip, phi, action, status, p
         for j in range(obs.shape[1]):
             obs32[r, j] = obs[r, j]
     if snap:
-        snapshot_rows(start, stop, status, phi, abs_phi, obs32, state, next_state, force, o_obs, o_phi, o_abs, o_state,
-                      o_force)
+        snapshot_rows(start, stop, snap, status, steps, phi, abs_phi, obs32, dt, state, next_state, force, o_obs, o_phi,
+                      o_abs, o_state, o_force, o_time)
 
 
 @njit(cache=True)
@@ -319,41 +322,80 @@ def _copy_rows(src, dst, start, stop):
         o[i] = s[i]
 
 
+#: Modes of :func:`snapshot_rows`: no copies, copy every info array, or copy all but the state,
+#: which the step itself wrote into the info buffer (``ConstraintTask.step(info=...)``).
+SNAP_NONE, SNAP_COPY, SNAP_STEPPED = 0, 1, 2
+
+
 @njit(cache=True)
-def snapshot_rows(start, stop, status, phi, abs_phi, obs32, state, next_state, force, o_obs, o_phi, o_abs, o_state,
-                  o_force):
+def snapshot_rows(start, stop, mode, status, steps, phi, abs_phi, obs32, dt, state, next_state, force, o_obs, o_phi,
+                  o_abs, o_state, o_force, o_time):
     """The copies of :meth:`ConstraintTask.batch_info` for rows ``start:stop`` into the ``o_*``
-    buffers (``state`` from ``next_state`` where non-finite)."""
-    _copy_rows(state, o_state, start, stop)
+    buffers, and ``o_time = steps * dt``.
+
+    ``SNAP_COPY``: ``o_state`` from ``state``, or from ``next_state`` where non-finite.
+    ``SNAP_STEPPED``: the RK4 step wrote its result into ``o_state`` (its ``NEXT``), which is
+    already the info's state (the accepted state, or the non-finite one); only the non-finite
+    rows go on to ``next_state``, where :meth:`ConstraintTask.step` documents them.  One copy of
+    the whole state less per step.
+    """
+    if mode == SNAP_COPY:
+        _copy_rows(state, o_state, start, stop)
     _copy_rows(obs32, o_obs, start, stop)
     _copy_rows(phi, o_phi, start, stop)
     _copy_rows(force, o_force, start, stop)
     _copy_rows(abs_phi, o_abs, start, stop)
     for r in range(start, stop):
+        o_time[r] = steps[r] * dt
         if status[r] == STATUS_NONFINITE:
             for j in range(state.shape[1]):
-                o_state[r, j] = next_state[r, j]
+                if mode == SNAP_COPY:
+                    o_state[r, j] = next_state[r, j]
+                else:
+                    next_state[r, j] = o_state[r, j]
 
 
 @njit(cache=True)
-def _snapshot_at(rows, status, phi, abs_phi, obs32, sargs):
-    """:func:`snapshot_rows` for the rows listed in ``rows``."""
+def _snapshot_at(rows, status, steps, phi, abs_phi, obs32, sargs):
+    """:func:`snapshot_rows` (``SNAP_COPY``) for the rows listed in ``rows``, row by row (a call
+    of the block form per row cost about 0.3 us a row)."""
+    dt, state, next_state, force, o_obs, o_phi, o_abs, o_state, o_force, o_time = sargs
     for i in range(rows.shape[0]):
-        snapshot_rows(rows[i], rows[i] + 1, status, phi, abs_phi, obs32, *sargs)
+        r = rows[i]
+        src = next_state if status[r] == STATUS_NONFINITE else state
+        for j in range(state.shape[1]):
+            o_state[r, j] = src[r, j]
+        for j in range(obs32.shape[1]):
+            o_obs[r, j] = obs32[r, j]
+        for j in range(phi.shape[1]):
+            o_phi[r, j] = phi[r, j]
+        for j in range(force.shape[1]):
+            o_force[r, j] = force[r, j]
+        o_abs[r] = abs_phi[r]
+        o_time[r] = steps[r] * dt
 
 
 class ObserveKernels(NamedTuple):
-    """An environment's compiled observation kernels, all over ``(*observe_args)``:
-    ``all(*a)`` every row, ``at(rows, *a)`` the given rows, ``tail(a, finish_args)`` observe then
-    :func:`finish_rows` every row in one pass.  (numba cannot cache a kernel that takes another
-    kernel as an argument, so each environment module compiles its own.)  ``module`` names the
-    module, which also defines ``_tail_rows(start, stop, a, finish_args)``, the row-block form
-    of ``tail`` that the threaded step fuses with the system's RK4 (:mod:`vnhc_gym.envs._fused`)."""
+    """An environment's compiled kernels.
+
+    The observation kernels run over ``(*observe_args)``: ``all(*a)`` every row, ``at(rows, *a)``
+    the given rows, ``tail(a, finish_args)`` observe then :func:`finish_rows` every row in one
+    pass.  (numba cannot cache a kernel that takes another kernel as an argument, so each
+    environment module compiles its own.)  ``draw(rows, stage, draw_args, outputs)`` draws new
+    episodes in ``draw_stages`` stages; before each stage after the first, ``outputs`` holds the
+    system's extra outputs with the *true* parameters at the state drawn so far (the USV draws
+    its start velocity from the current at its start position).  ``module`` names the module,
+    which also defines ``_tail_rows(start, stop, a, finish_args)``, ``_observe_rows(start, stop,
+    *a)``, ``_draw_rows`` (= ``draw``) and ``DRAW_STAGES``: the pieces that
+    :mod:`vnhc_gym.envs._fused` joins with the system's kernels.
+    """
 
     all: Any
     at: Any
     tail: Any
     module: str
+    draw: Any
+    draw_stages: int
 
 
 class ConstraintTask:
@@ -376,7 +418,7 @@ class ConstraintTask:
         self.k = model.kernels
         if n >= PARALLEL_MIN_ROWS:
             _start_thread_pool()
-        self._fused = self._fused_kernel()
+        self._fused, self._reset_fused = self._fused_kernels()
         self._extra = (N_CHUNKS,) if n >= PARALLEL_MIN_ROWS else ()
         # Big batches time the threaded and the serial step now and then and run the faster one
         # (they compute the same numbers): on a machine with more busy threads than cores the
@@ -419,6 +461,7 @@ class ConstraintTask:
         #: Per-row SplitMix64 states (see vnhc_gym.envs._random); seeded by seed_rows.
         self.rng = np.zeros(n, dtype=np.uint64)
         self._seeded = np.zeros(n, dtype=np.bool_)
+        self._all_seeded = False
         self._no_skip = np.zeros(n, dtype=np.bool_)
         # Every buffer above is only ever written in place, so the kernels' argument tuples are
         # built once (attribute look-ups cost as much as the physics at batch 1).
@@ -430,9 +473,12 @@ class ConstraintTask:
                              cfg.action_cost, cfg.reward_clip, self.reward, self.abs_phi, self.steps, self.obs32)
         # Sources of the info copies (snapshot_rows); with snap=False the kernels never touch the
         # outputs, so the sources themselves stand in for them (same types, one compiled version).
-        self._snap_src = (self.state, self.next_state, self.force_applied)
-        self._no_snap = (False, *self._snap_src, self.obs32, self.phi, self.abs_phi, self.state, self.force_applied)
+        self._snap_src = (cfg.dt, self.state, self.next_state, self.force_applied)
+        self._no_snap = (SNAP_NONE, *self._snap_src, self.obs32, self.phi, self.abs_phi, self.state, self.force_applied,
+                         self.abs_phi)
         self._finish_args = (self.obs, self.rng, self._no_skip, *self._finish_tail, *self._no_snap)
+        self._start_args = (self.obs, self.rng, cfg.obs_noise, cfg.obs_clip, self.phi, self.status, self.abs_phi,
+                            self.obs32, self.steps, self.force, self.force_applied, self.action, self.flags)
         self.feedback = "open"
         self._kicks = config.impulse_prob > 0
 
@@ -440,22 +486,24 @@ class ConstraintTask:
         # Compiled kernels are module functions of a generated module: re-bound on unpickle.
         state = self.__dict__.copy()
         state["k"] = None
-        state["_fused"] = None
+        state["_fused"] = state["_reset_fused"] = None
         state.pop("_pool", None)  # reusable info buffers: not part of the state
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         self.k = self.model.kernels
-        self._fused = self._fused_kernel()
+        self._fused, self._reset_fused = self._fused_kernels()
 
-    def _fused_kernel(self) -> Any:
-        """The threaded advance-then-tail kernel (:mod:`vnhc_gym.envs._fused`), for big batches."""
-        if self.n < PARALLEL_MIN_ROWS:
-            return None
-        from vnhc_gym.envs._fused import fused_step
+    def _fused_kernels(self) -> tuple[Any, Any]:
+        """The threaded advance-then-tail kernel (big batches) and the one-call reset (batches),
+        from :mod:`vnhc_gym.envs._fused`; None where not used."""
+        if self.n < 2:
+            return None, None
+        from vnhc_gym.envs._fused import fused_module
 
-        return fused_step(self.k, self.observe_kernels.module)
+        module = fused_module(self.k, self.observe_kernels.module)
+        return (module.step_parallel if self.n >= PARALLEL_MIN_ROWS else None), module.reset_rows
 
     def set_feedback(self, feedback: str = "open", gains: Any = 1.0) -> None:
         """Run the geometric law inside the integrator, on top of the held force.
@@ -478,9 +526,14 @@ class ConstraintTask:
     # ------------------------------------------------------------------ hooks
     def sample_rows(self, rows: NDArray[np.intp]) -> None:
         """Draw new episodes for ``rows`` from their streams (``self.rng``): write
-        ``self.state[rows]``, ``self.params_true[rows]`` and ``self.params_nominal[rows]``
-        (``self.aux[rows]`` may be used as scratch: :meth:`reset_rows` refills it)."""
-        raise NotImplementedError
+        ``self.state[rows]``, ``self.params_true[rows]`` and ``self.params_nominal[rows]``, with
+        the subclass's ``observe_kernels.draw`` on ``self._draw_args`` (``self.aux[rows]`` holds
+        the true model's outputs between its stages: :meth:`reset_rows` refills it)."""
+        k = self.observe_kernels
+        for stage in range(k.draw_stages):
+            if stage:
+                self.k.aux_at(rows, self.state, self.params_true, self.aux)
+            k.draw(rows, stage, self._draw_args, self.aux)
 
     def observe(self, rows: NDArray[np.intp] | None = None) -> None:
         """Fill ``self.obs`` (clipped float64) and ``self.status`` from ``self.flags`` for ``rows``
@@ -517,25 +570,35 @@ class ConstraintTask:
         """Start a new episode in row ``i`` (see :meth:`reset_rows`)."""
         self.reset_rows(np.array([i], dtype=np.intp))
 
-    def reset_rows(self, rows: NDArray[np.intp]) -> None:
+    def reset_rows(self, rows: NDArray[np.intp], info: tuple[np.ndarray, ...] | None = None) -> None:
         """Start new episodes in ``rows``, each drawn from its own stream, and refresh their outputs.
 
         Other rows keep their float32 observations (``obs32``) and statuses.  Rows never seeded
-        get an entropy seed first.
+        get an entropy seed first.  ``info`` (buffers from :meth:`info_buffers`) receives the
+        rows' info copies (as :meth:`snapshot`).  Batches (``n > 1``) do all of it in one
+        compiled call (:mod:`vnhc_gym.envs._fused`); the steps below are the same kernels one by one.
         """
         rows = np.asarray(rows, dtype=np.intp)
         if rows.size == 0:
             return
-        if not self._seeded[rows].all():
-            self.seed_rows(rows, [None] * rows.size)
+        if not self._all_seeded:
+            if not self._seeded[rows].all():
+                self.seed_rows(rows, [None] * rows.size)
+            self._all_seeded = bool(self._seeded.all())
+        if self._reset_fused is not None:
+            snap = self._no_snap if info is None else (SNAP_COPY, *self._snap_src, *info)
+            self._reset_fused(rows, self._draw_args, self.state, self.params_true, self.params_nominal, self.phi,
+                              self.aux, self.flags, self._observe_args, self._start_args, snap[0],
+                              (self.status, self.steps, self.phi, self.abs_phi, self.obs32, snap[1:]))
+            return
         self.sample_rows(rows)
         self.flags[rows] = 0
         self.k.phi_at(rows, self.state, self.params_true, self.phi)
         self.k.aux_at(rows, self.state, self.params_nominal, self.aux)
         self.observe(rows)
-        cfg = self.config
-        _start_rows(rows, self.obs, self.rng, cfg.obs_noise, cfg.obs_clip, self.phi, self.status, self.abs_phi,
-                    self.obs32, self.steps, self.force, self.force_applied, self.action, self.flags)
+        _start_rows(rows, *self._start_args)
+        if info is not None:
+            self.snapshot(rows, info)
 
     def step(self, skip: NDArray[np.bool_] | None = None,
              info: tuple[np.ndarray, ...] | None = None) -> NDArray[np.int64]:
@@ -553,17 +616,22 @@ class ConstraintTask:
         if self._kicks:
             _fill_kicks(self.dv, self.rng, sk, self.config.impulse_prob, self.impulse_scale, self.impulse_mask())
         fargs: tuple[Any, ...] = self._finish_args
+        aargs = self._advance_args
         if skip is not None or info is not None:
-            snap = self._no_snap if info is None else (True, *self._snap_src, *info)
+            snap = self._no_snap if info is None else (SNAP_STEPPED, *self._snap_src, *info)
             fargs = (self.obs, self.rng, sk, *self._finish_tail, *snap)
+        if info is not None:
+            # RK4 writes the new state straight into the info's state buffer (its NEXT), which
+            # advance then accepts into self.state: one copy of the state less (SNAP_STEPPED).
+            aargs = (*aargs[:_NEXT], info[3], *aargs[_NEXT + 1:])
         if self._timed:
-            self._step_timed(fargs)
+            self._step_timed(aargs[:-1], fargs)
         else:
-            self.k.advance(*self._advance_args)
+            self.k.advance(*aargs)
             self.tail(fargs)
         return self.status
 
-    def _step_timed(self, fargs: tuple[Any, ...]) -> None:
+    def _step_timed(self, aargs: tuple[Any, ...], fargs: tuple[Any, ...]) -> None:
         """Advance and tail with the faster of the threaded (fused) and the serial kernels (big
         batches only).
 
@@ -577,9 +645,9 @@ class ConstraintTask:
         threaded = self._threaded != probe
         t0 = perf_counter()
         if threaded:
-            self._fused(self._advance_args[:-1], self._observe_args, fargs, N_CHUNKS)
+            self._fused(aargs, self._observe_args, fargs, N_CHUNKS)
         else:
-            self.k.advance(*self._advance_args[:-1])
+            self.k.advance(*aargs)
             self.tail(fargs)
         elapsed = perf_counter() - t0
         mean = self._kernel_s
@@ -611,15 +679,15 @@ class ConstraintTask:
         """Fill ``bufs`` (from :meth:`info_buffers`) with the info copies of ``rows`` (default all)."""
         sargs = (*self._snap_src, *bufs)
         if rows is None:
-            snapshot_rows(0, self.n, self.status, self.phi, self.abs_phi, self.obs32, *sargs)
+            snapshot_rows(0, self.n, SNAP_COPY, self.status, self.steps, self.phi, self.abs_phi, self.obs32, *sargs)
         else:
-            _snapshot_at(rows, self.status, self.phi, self.abs_phi, self.obs32, sargs)
+            _snapshot_at(rows, self.status, self.steps, self.phi, self.abs_phi, self.obs32, sargs)
 
     def info_from(self, bufs: tuple[np.ndarray, ...]) -> tuple[NDArray[np.float32], dict[str, Any], int]:
         """:meth:`batch_info`'s result from filled ``bufs``."""
-        o_obs, o_phi, o_abs, o_state, o_force = bufs
+        o_obs, o_phi, o_abs, o_state, o_force, o_time = bufs
         return o_obs, {"phi": o_phi, "abs_phi": o_abs, "state": o_state, "force": o_force,
-                       "time": self.steps * self.config.dt}, int(np.count_nonzero(self.status))
+                       "time": o_time}, int(np.count_nonzero(self.status))
 
     def info_buffers(self) -> tuple[np.ndarray, ...]:
         """A set of output arrays for the info copies that nobody else references.
@@ -636,7 +704,7 @@ class ConstraintTask:
             if all(sys.getrefcount(b) <= 3 for b in bufs):
                 return bufs
         bufs = (np.empty_like(self.obs32), np.empty_like(self.phi), np.empty_like(self.abs_phi),
-                np.empty_like(self.state), np.empty_like(self.force_applied))
+                np.empty_like(self.state), np.empty_like(self.force_applied), np.empty_like(self.abs_phi))
         pool.append(bufs)
         if len(pool) > _POOL_SIZE:
             del pool[0]  # held by the caller: theirs now, freed when they let go

@@ -147,12 +147,28 @@ def _sample_velocity(rows, rng, current, S):
         S[r, 5] = uniform_ab(rng, r, -0.5, 0.5)
 
 
+#: Stages of :func:`_draw_rows` (see :class:`~vnhc_gym.envs.task.ObserveKernels`): the start
+#: velocity (stage 1) depends on the true current at the start position drawn in stage 0.
+DRAW_STAGES = 2
+
+
+@njit(cache=True)
+def _draw_rows(rows, stage, dargs, outputs):
+    """New episodes for ``rows``: stage 0 :func:`_sample_params`; stage 1 :func:`_sample_velocity`
+    from ``outputs`` (the true model's outputs at the start pose), unless a preset fixed the state."""
+    rng, nominal, amp_idx, amp_w, mismatch_mask, delta, preset_state, use_preset, S, PT, PN = dargs
+    if stage == 0:
+        _sample_params(rows, rng, nominal, amp_idx, amp_w, mismatch_mask, delta, preset_state, use_preset, S, PT, PN)
+    elif not use_preset:
+        _sample_velocity(rows, rng, outputs, S)
+
+
 class USVTask(ConstraintTask):
     """Batched USV episodes (see :class:`USVStreamEnv` for the semantics)."""
 
     obs_dim = USV_OBS_DIM
     # Observations use self.aux: the *nominal* current map at the boat (what the controller is told).
-    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, __name__)
+    observe_kernels = ObserveKernels(_observe, _observe_at, _tail, __name__, _draw_rows, DRAW_STAGES)
 
     def __init__(self, config: TaskConfig, n: int, *, current: str = "random", current_params: dict | None = None,
                  mass: float = 10.0, inertia: float = 1.5, domain: float = 100.0, max_turn_rate: float = 10.0,
@@ -195,18 +211,9 @@ class USVTask(ConstraintTask):
                                  dtype=np.intp)
         self._amp_w = np.asarray([] if self.fixed_field else RANDOM_WEIGHTS, dtype=np.float64)
         self._preset_state = USV_PRESETS[preset].state() if preset is not None else np.zeros(6)
-
-    def sample_rows(self, rows: NDArray[np.intp]) -> None:
-        cfg = self.config
-        _sample_params(rows, self.rng, self.nominal, self._amp_idx, self._amp_w, self._mismatch_mask,
-                       cfg.param_mismatch, self._preset_state, self.preset is not None, self.state,
-                       self.params_true, self.params_nominal)
-        if self.preset is None:
-            # The start velocity depends on the true current at the start position.
-            # The true current goes into self.aux's rows for now; reset_rows then overwrites them
-            # with the nominal model's outputs.
-            self.k.aux_at(rows, self.state, self.params_true, self.aux)
-            _sample_velocity(rows, self.rng, self.aux, self.state)
+        self._draw_args = (self.rng, self.nominal, self._amp_idx, self._amp_w, self._mismatch_mask,
+                           config.param_mismatch, self._preset_state, self.preset is not None, self.state,
+                           self.params_true, self.params_nominal)
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()

@@ -38,6 +38,9 @@ from vnhc_gym.envs.usv_stream import USVStreamEnv, USVTask
 
 __all__ = ["ConstraintVectorEnv", "FlockingAlignVectorEnv", "USVStreamVectorEnv"]
 
+#: ``termination_reason`` by status code (``REASONS``; None for ``STATUS_OK``), for ``take``.
+_REASON_TABLE = np.array([REASONS.get(code) for code in range(max(REASONS) + 1)], dtype=object)
+
 
 @njit(cache=True)
 def accept_actions(actions: np.ndarray, skip: np.ndarray, bound: np.ndarray, force: np.ndarray,
@@ -93,6 +96,22 @@ def step_outcome(status: np.ndarray, steps: np.ndarray, max_steps: int, terminat
         if term or trunc:
             n_ended += 1
     return n_ended
+
+
+@njit(cache=True)
+def restart_outcome(rows: np.ndarray, reset_mask: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
+                    pending: np.ndarray, reward: np.ndarray) -> int:
+    """The outcome of sub-envs ``rows`` that ``NEXT_STEP``-reset at this step: marked in
+    ``reset_mask``, not terminated, truncated or pending, reward 0.  Returns the number of
+    sub-envs still pending (ended at this step)."""
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        reset_mask[r] = True
+        terminated[r] = False
+        truncated[r] = False
+        pending[r] = False
+        reward[r] = 0.0
+    return int(np.count_nonzero(pending))
 
 
 def _check_seed(seed: Any) -> None:
@@ -295,15 +314,9 @@ class ConstraintVectorEnv(VectorEnv):
         final: dict[str, Any] | None = None
         reset_mask = None
         if next_step:
-            task.reset_rows(rows)
-            task.snapshot(rows, bufs)
+            task.reset_rows(rows, bufs)
             reset_mask = np.zeros(n, dtype=np.bool_)
-            reset_mask[rows] = True
-            terminated[rows] = False
-            truncated[rows] = False
-            pending[rows] = False
-            reward[rows] = 0.0
-            self._n_pending = int(np.count_nonzero(pending))
+            self._n_pending = restart_outcome(rows, reset_mask, terminated, truncated, pending, reward)
         elif self._n_pending and mode is AutoresetMode.SAME_STEP:
             done = pending.copy()
             rows = np.flatnonzero(done)
@@ -314,12 +327,11 @@ class ConstraintVectorEnv(VectorEnv):
             step_info = task.info_from(tuple(b.copy() for b in bufs))
             final = {"final_obs": final_obs, "_final_obs": done, "final_info": self._infos(done.copy(), step_info)[1],
                      "_final_info": done.copy()}
-            task.reset_rows(rows)
-            task.snapshot(rows, bufs)
+            task.reset_rows(rows, bufs)
             reset_mask = done
         obs, infos = self._infos(info=task.info_from(bufs))
         if reset_mask is not None:
-            self._add_params(infos, reset_mask)
+            self._add_params(infos, reset_mask, rows)
         if final is not None:
             infos.update(final)
         if self.render_mode == "human":
@@ -402,18 +414,19 @@ class ConstraintVectorEnv(VectorEnv):
                 infos["_" + key] = rows.copy()
             ended = (status != STATUS_OK) & rows if n_bad else None
         if ended is not None and ended.any():
-            reasons = np.full(n, None, dtype=object)
-            for i in np.flatnonzero(ended).tolist():
-                reasons[i] = REASONS[int(status[i])]
-            infos["termination_reason"] = reasons
+            # None where OK (every row that has no reason, masked-off rows included).
+            infos["termination_reason"] = _REASON_TABLE.take(status if rows is None else np.where(rows, status, 0))
             infos["_termination_reason"] = ended
         return obs, infos
 
-    def _add_params(self, infos: dict[str, Any], rows: NDArray[np.bool_]) -> None:
+    def _add_params(self, infos: dict[str, Any], rows: NDArray[np.bool_], idx: NDArray[np.intp] | None = None
+                    ) -> None:
         """The reset info's ``params`` (the new episodes' true parameters) for the sub-envs in
-        ``rows`` that were just reset (zeros and a False mask elsewhere, as SyncVectorEnv merges it)."""
+        ``rows`` (``idx``: the same as indices, if known) that were just reset (zeros and a False
+        mask elsewhere, as SyncVectorEnv merges it)."""
         buf = self.__dict__.get("_params_buf")
-        idx = np.flatnonzero(rows)
+        if idx is None:
+            idx = np.flatnonzero(rows)
         # Refill the last call's array if nobody else holds it (references: the tuple and
         # getrefcount's argument): a fresh (n, n_params) array every step page-faults at large n.
         # Integer rows, not the mask: a few reset rows of a big batch are a few row copies.

@@ -35,7 +35,7 @@ if TYPE_CHECKING:  # sympy is imported by the functions that generate code, neve
 
 __all__ = ["cache_dir", "generate_source", "load_module", "recipe_key", "sources_digest", "CODEGEN_VERSION"]
 
-CODEGEN_VERSION = "18"
+CODEGEN_VERSION = "19"
 _LOCK = threading.Lock()
 _LOADED: dict[str, ModuleType] = {}
 
@@ -237,6 +237,12 @@ def _lane_rows_body(exprs: list[sp.Expr], state_syms: list[sp.Symbol], param_sym
     return "\n".join("    " + line for line in lines)
 
 
+def _listed_rows(body: str) -> str:
+    """A lane kernel's body (over rows ``start:stop``) turned into one over the rows listed in
+    ``rows[start:stop]``: the same lane code, so the same numbers, row for row."""
+    return body.replace("r = b0 + l", "r = rows[b0 + l]")
+
+
 def generate_source(law: SymbolicLaw, outputs: Mapping[str, sp.Expr] | None = None) -> str:
     """Python source of a numba module implementing ``law`` (see the module template).
 
@@ -292,6 +298,8 @@ def generate_source(law: SymbolicLaw, outputs: Mapping[str, sp.Expr] | None = No
     else:
         solve = "    return solve_small(C, G, u, tol)"
     defaults = ", ".join(_literal(v) for v in system.default_param_values())
+    phi_rows = _lane_rows_body(list(law.phi), state_syms, param_syms)
+    aux_rows = _lane_rows_body(list(outputs.values()), state_syms, param_syms) if outputs else "    pass"
     return _TEMPLATE.format(
         name=system.name, n=n, m=m, n_params=len(param_syms), n_gains=law.n_gains, n_aux=len(outputs),
         holonomic=law.phi_h is not None, param_names=tuple(str(p) for p in param_syms),
@@ -300,8 +308,8 @@ def generate_source(law: SymbolicLaw, outputs: Mapping[str, sp.Expr] | None = No
         energy_body=block([("e", law.energy)]),
         acc_body=acc_body, solve_body=solve, diagonal=diagonal,
         open_body=_open_rows_body(list(accel), state_syms, param_syms, m),
-        phi_rows_body=_lane_rows_body(list(law.phi), state_syms, param_syms),
-        aux_rows_body=_lane_rows_body(list(outputs.values()), state_syms, param_syms) if outputs else "    pass",
+        phi_rows_body=phi_rows, phi_idx_body=_listed_rows(phi_rows),
+        aux_rows_body=aux_rows, aux_idx_body=_listed_rows(aux_rows),
     )
 
 
@@ -587,6 +595,22 @@ def _aux_rows(start, stop, S, P, out):
 {aux_rows_body}
 
 
+@njit(cache=True, error_model="numpy")
+def _phi_idx(rows, S, P, out):
+    # _phi_rows for the rows listed in rows (a reset's rows), in lanes of those rows.
+    start = 0
+    stop = rows.shape[0]
+{phi_idx_body}
+
+
+@njit(cache=True, error_model="numpy")
+def _aux_idx(rows, S, P, out):
+    # _aux_rows for the rows listed in rows.
+    start = 0
+    stop = rows.shape[0]
+{aux_idx_body}
+
+
 @njit(cache=True)
 def _advance_rows(start, stop, S, P, U, K, mode, lo, hi, dt, substeps, tol, NEXT, u_out, flags, DV, PHI, PA, AUX):
     _rows(mode, start, stop, S, P, PA, U, K, lo, hi, dt, substeps, tol, NEXT, u_out, flags)
@@ -668,13 +692,11 @@ def aux(S, P, out):
 @njit(cache=True)
 def phi_at(rows, S, P, out):
     """phi of the listed rows of the full arrays S, P into out[rows] (a reset's rows)."""
-    for i in range(rows.shape[0]):
-        _phi_rows(rows[i], rows[i] + 1, S, P, out)
+    _phi_idx(rows, S, P, out)
 
 
 @njit(cache=True)
 def aux_at(rows, S, P, out):
     """The extra outputs of the listed rows into out[rows], as phi_at."""
-    for i in range(rows.shape[0]):
-        _aux_rows(rows[i], rows[i] + 1, S, P, out)
+    _aux_idx(rows, S, P, out)
 '''
