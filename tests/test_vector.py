@@ -136,6 +136,17 @@ def test_rows_that_overflow_in_rk4_equal_single_envs(n: int, threaded: bool) -> 
             np.testing.assert_array_equal(vec.task.next_state[bad], out_a[4]["state"][bad])
 
 
+def test_thread_pool_settings_stay_out_of_the_environment() -> None:
+    """The libgomp settings of the thread pool's start are not left in ``os.environ``."""
+    import os
+
+    from vnhc_gym.envs.task import _OMP_ENV, PARALLEL_MIN_ROWS
+
+    before = {k: os.environ.get(k) for k in _OMP_ENV}
+    VECTOR_CLS[FLOCK](PARALLEL_MIN_ROWS).reset(seed=0)
+    assert {k: os.environ.get(k) for k in _OMP_ENV} == before
+
+
 def test_disabled_mode_with_reset_mask_equals_sync() -> None:
     vec = FlockingAlignVectorEnv(N, max_episode_steps=7, autoreset_mode="Disabled", scenario="noisy")
     ref = _sync(FLOCK, N, AutoresetMode.DISABLED, max_episode_steps=7, scenario="noisy")
