@@ -268,8 +268,8 @@ def _add_noise(obs, rng, r, sigma, clip):
 
 @njit(cache=True)
 def finish_rows(start, stop, obs, rng, skip, sigma, clip, phi, action, status, phi_scale, action_cost, reward_clip,
-                reward, abs_phi, steps, obs32, snap, dt, state, next_state, force, o_obs, o_phi, o_abs, o_state, o_force,
-                o_time):
+                reward, abs_phi, steps, obs32, snap, dt, state, next_state, force, o_obs, o_phi, o_abs, o_state,
+                o_force, o_time):
     """After ``observe`` of rows ``start:stop``: observation noise (not for ``skip``-ped rows,
     whose step is discarded), reward, step counter and the float32 copy of the observation.
     Called once per row block by each environment's fused observe-and-finish kernels (``_tail``,
@@ -415,14 +415,16 @@ class ObserveKernels(NamedTuple):
 class ConstraintTask:
     """``B`` episodes of a constrained system, stepped together.
 
-    Subclasses set ``obs_dim`` and implement :meth:`sample_episode` (initial state and true /
-    nominal parameters for one row), :meth:`observe` (observations and status of all rows from
-    the compiled kernels' flags) and :meth:`impulse_mask` (which velocity entries impulses kick).
+    Subclasses set ``obs_dim`` and ``observe_kernels`` (their module's compiled kernels: the
+    observation, and the draw of new episodes that :meth:`sample_rows` runs), build
+    ``_observe_args`` and ``_draw_args`` (the kernels' arguments) in ``__init__``, and implement
+    :meth:`impulse_mask` (which velocity entries impulses kick).
     """
 
     obs_dim: int
     observe_kernels: ClassVar[ObserveKernels]
     _observe_args: tuple[Any, ...]
+    _draw_args: tuple[Any, ...]
 
     def __init__(self, model: ConstrainedSystem, config: TaskConfig, force_bound: Array, n: int,
                  default_impulse: float) -> None:

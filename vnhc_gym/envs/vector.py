@@ -396,7 +396,6 @@ class ConstraintVectorEnv(VectorEnv):
         and False masks elsewhere), as ``SyncVectorEnv`` assembles the single envs' ``info``;
         from ``info`` (``task.info_from``) if given, else from ``task.batch_info()``."""
         task = self.task
-        n = self.num_envs
         status = task.status
         obs, values, n_bad = task.batch_info() if info is None else info
         infos: dict[str, Any] = {}
