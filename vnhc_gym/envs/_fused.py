@@ -32,7 +32,7 @@ _TEMPLATE = '''\
 from numba import njit, prange
 
 from {system} import _advance_rows, _aux_idx, _phi_idx
-from {env} import DRAW_STAGES, _draw_rows, _observe_rows, _tail_rows
+from {env} import DRAW_STAGES, _draw_rows, _observe_at, _tail_rows
 from vnhc_gym.envs.task import _snapshot_at, _start_rows
 
 
@@ -61,8 +61,7 @@ def reset_rows(rows, dargs, S, PT, PN, PHI, AUX, flags, oargs, start_args, snap,
         flags[rows[i]] = 0
     _phi_idx(rows, S, PT, PHI)
     _aux_idx(rows, S, PN, AUX)
-    for i in range(rows.shape[0]):
-        _observe_rows(rows[i], rows[i] + 1, *oargs)
+    _observe_at(rows, *oargs)
     _start_rows(rows, *start_args)
     if snap:
         _snapshot_at(rows, *snap_args)

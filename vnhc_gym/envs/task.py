@@ -399,8 +399,8 @@ class ObserveKernels(NamedTuple):
     episodes in ``draw_stages`` stages; before each stage after the first, ``outputs`` holds the
     system's extra outputs with the *true* parameters at the state drawn so far (the USV draws
     its start velocity from the current at its start position).  ``module`` names the module,
-    which also defines ``_tail_rows(start, stop, a, finish_args)``, ``_observe_rows(start, stop,
-    *a)``, ``_draw_rows`` (= ``draw``) and ``DRAW_STAGES``: the pieces that
+    which also defines ``_tail_rows(start, stop, a, finish_args)``, ``_observe_at`` (= ``at``),
+    ``_draw_rows`` (= ``draw``) and ``DRAW_STAGES``: the pieces that
     :mod:`vnhc_gym.envs._fused` joins with the system's kernels.
     """
 
