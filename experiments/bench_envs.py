@@ -20,7 +20,12 @@ One run measures, prints and writes ``<out>/bench_envs.json`` and ``<out>/bench_
    gym.make(id).reset(seed=0)"`` in a fresh process with empty ``VNHC_GYM_CACHE_DIR`` and
    ``NUMBA_CACHE_DIR`` (cold: symbolic derivation, code generation and numba compilation) and
    again with the caches filled (cached), also with one ``step`` added (which compiles the
-   step kernels); floor: cached adds < 1 s over ``python -c "import gymnasium"``.
+   step kernels); floor: cached adds < 1 s over ``python -c "import gymnasium"`` (the median of
+   paired differences: each cached run right after an ``import gymnasium`` run).
+4. **The USV's bound** -- at the largest ``N``, timed together with ``CartPoleVectorEnv``: the
+   USV env with its default ``random`` current, with a constant current, and the random
+   current's compiled physics alone: the open-loop RK4 step, and RK4 + ``phi`` + the current
+   map (the least any step of that env costs).
 
 Actions are drawn in advance with numpy (``action_space.sample()`` costs more than a step).
 Every figure is the median over ``--repeats`` repeats, interleaved across the compared
@@ -127,14 +132,17 @@ def bench_single(steps: int, repeats: int) -> dict[str, Any]:
 class VectorTimer:
     """Times ``steps`` consecutive steps of a vector env from ``reset(seed=...)``."""
 
-    def __init__(self, env_id: str, n: int, steps: int, mode: str = "vector_entry_point") -> None:
-        self.env = gym.make_vec(env_id, num_envs=n, vectorization_mode=mode)
+    def __init__(self, env_id: str, n: int, steps: int, mode: str = "vector_entry_point", **kwargs: Any) -> None:
+        self.env = gym.make_vec(env_id, num_envs=n, vectorization_mode=mode, **kwargs)
         self.n = n
         self.actions = draw_actions(self.env.single_action_space, (steps, n), np.random.default_rng(1))
         self.env.reset(seed=0)
         for a in self.actions[:3]:  # warm-up
             self.env.step(a)
         self.seed = 0
+        if mode != "sync":
+            # A whole untimed pass, so that the first auto-resets (and any kernel they load) happen here.
+            self.run()
 
     def run(self) -> tuple[float, float]:
         """(rollout env-steps/s over all the steps, stepping env-steps/s from the median step)."""
@@ -190,9 +198,12 @@ def _wall(code: str, env: dict[str, str]) -> float:
 
 
 def bench_jit(repeats: int, cold: bool) -> dict[str, Any]:
+    """Start-up walls; "over import" is the median of paired differences: each cached run is
+    preceded by a run of ``import gymnasium``, so a load change on the machine (which shifts
+    both by tenths of a second here) cancels out of the difference."""
     base_env = dict(os.environ)
-    imp = statistics.median(_wall("import gymnasium", base_env) for _ in range(repeats))
-    out: dict[str, Any] = {"import_gymnasium_s": imp, "envs": {}}
+    imports: list[float] = []
+    out: dict[str, Any] = {"envs": {}}
     for env_id in ENV_IDS:
         row: dict[str, Any] = {}
         for label, code in (
@@ -207,11 +218,85 @@ def bench_jit(repeats: int, cold: bool) -> dict[str, Any]:
                     row[f"{label}_cold_s"] = _wall(code, env)
                 else:  # quick: the default caches, assumed filled
                     row[f"{label}_cold_s"] = None
-                row[f"{label}_cached_s"] = statistics.median(_wall(code, env) for _ in range(repeats))
-            row[f"{label}_over_import_s"] = row[f"{label}_cached_s"] - imp
+                walls, diffs = [], []
+                for _ in range(repeats):
+                    imp = _wall("import gymnasium", base_env)
+                    wall = _wall(code, env)
+                    imports.append(imp)
+                    walls.append(wall)
+                    diffs.append(wall - imp)
+            row[f"{label}_cached_s"] = statistics.median(walls)
+            row[f"{label}_over_import_s"] = statistics.median(diffs)
+            row[f"{label}_over_import_samples_s"] = diffs
         row["pass"] = row["reset_over_import_s"] < FLOOR_JIT_S and row["reset_step_over_import_s"] < FLOOR_JIT_S
         out["envs"][env_id] = row
+    out["import_gymnasium_s"] = statistics.median(imports)
     return out
+
+
+# ---------------------------------------------------------------------------------------------- 4. USV bound
+USV = "vnhc_gym/USVStream-v0"
+
+
+class KernelTimer:
+    """One of the USV's compiled physics kernels alone, on both cores, on the rows and episode
+    parameters of a freshly reset vector env with the default ``random`` current.
+
+    ``"rk4"``: the open-loop RK4 step (``kernels.rk4_parallel``) from a fixed state under random
+    forces.  ``"advance"``: RK4, then ``phi`` (the reward's) and the current map at the new state
+    (the observation's) -- ``kernels.advance_parallel``, the physics every step of the env must
+    do, with no observation, reward or info; zero force, so the state drifts with the current.
+    """
+
+    def __init__(self, kind: str, n: int, steps: int) -> None:
+        env = gym.make_vec(USV, num_envs=n, vectorization_mode="vector_entry_point")
+        env.reset(seed=0)
+        task: Any = env.unwrapped.task  # type: ignore[attr-defined]
+        state = task.state.copy()
+        params = task.params_true.copy()
+        next_state, u_out, flags = np.empty_like(state), np.empty_like(task.force), np.empty(n, dtype=np.int64)
+        common = (task._gains, 0, task._lo, task._hi, task.config.dt, task.config.substeps, task.model.singular_tol,
+                  next_state, u_out, flags)
+        if kind == "rk4":
+            u = draw_actions(env.single_action_space, (n,), np.random.default_rng(1)).astype(np.float64)
+            self.kernel, self.args = task.k.rk4_parallel, (state, params, task.force_bound * u, *common, 2)
+        elif kind == "advance":
+            self.kernel = task.k.advance_parallel
+            self.args = (state, params, np.zeros_like(task.force), *common, np.zeros((0, task.model.n)),
+                         np.empty_like(task.phi), params, np.empty_like(task.aux), 2)
+        else:
+            raise ValueError(f"kind must be 'rk4' or 'advance', got {kind!r}")
+        self.n, self.steps = n, steps
+        self.env = env
+        self.run()  # warm-up
+
+    def run(self) -> tuple[float, float]:
+        kernel, args = self.kernel, self.args
+        t0 = time.perf_counter()
+        for _ in range(self.steps):
+            kernel(*args)
+        rate = self.n * self.steps / (time.perf_counter() - t0)
+        return rate, rate
+
+
+def bench_usv_bound(n: int, repeats: int, cycle: int) -> dict[str, Any]:
+    """The USV at ``n`` against CartPoleVectorEnv, timed together: the native env (default
+    ``random`` current), the same env with the constant ``northeast`` current, and the random
+    current's open-loop RK4 alone.  If the RK4 alone is below CartPoleVectorEnv's whole step,
+    no USV step with that current can reach the CartPole floor on this machine."""
+    timers: dict[str, Any] = {CARTPOLE: VectorTimer(CARTPOLE, n, cycle), "random": VectorTimer(USV, n, cycle),
+                              "northeast": VectorTimer(USV, n, cycle, current="northeast"),
+                              "rk4": KernelTimer("rk4", n, cycle), "advance": KernelTimer("advance", n, cycle)}
+    samples: dict[str, list[float]] = {k: [] for k in timers}
+    for _ in range(repeats):
+        for key, timer in timers.items():
+            samples[key].append(timer.run()[0])
+    for timer in timers.values():
+        timer.env.close()
+    med = {k: statistics.median(v) for k, v in samples.items()}
+    cart = med.pop(CARTPOLE)
+    return {"n": n, "cartpole_steps_per_s": cart,
+            "rows": {k: {"steps_per_s": v, "ratio_cartpole": v / cart} for k, v in med.items()}}
 
 
 # ---------------------------------------------------------------------------------------------- report
@@ -256,11 +341,24 @@ def report(res: dict[str, Any]) -> str:
                      f"{fmt_rate(r['stepping_steps_per_s'])} | {fmt_rate(r['sync_steps_per_s'])} "
                      f"({r['sync_timed_steps']}) | {fmt_rate(r['cartpole_steps_per_s'])} | "
                      f"{r['ratio_cartpole']:.2f} | {r['ratio_sync']:.1f} | {floor} |")
+    b = res["usv_bound"]
+    lines += ["", f"## USVStream-v0 at N = {b['n']} against CartPoleVectorEnv, timed together", "",
+              "Kernels alone, on both cores, on a reset batch with the default `random` current: RK4 = the "
+              "open-loop RK4 step (`kernels.rk4_parallel`); RK4 + phi + current map = `kernels.advance_parallel`, "
+              "the physics that every step of the env does (the reward needs phi, the observation the current "
+              "and its Jacobian at the new state), without observation, reward or info.", "",
+              f"| what | env-steps/s | / CartPole ({fmt_rate(b['cartpole_steps_per_s'])}) |", "|---|---:|---:|"]
+    names = {"random": "native env, `current=\"random\"` (default)",
+             "northeast": "native env, `current=\"northeast\"` (constant)", "rk4": "RK4 alone, `random` current",
+             "advance": "RK4 + phi + current map alone, `random` current"}
+    for key, r in b["rows"].items():
+        lines.append(f"| {names[key]} | {fmt_rate(r['steps_per_s'])} | {r['ratio_cartpole']:.2f} |")
     jit = res["jit"]
     lines += ["", "## JIT start-up: fresh `python -c \"import gymnasium as gym, vnhc_gym; "
               "gym.make(id).reset(seed=0)\"` (s)", "",
               f"`python -c \"import gymnasium\"`: {jit['import_gymnasium_s']:.2f} s. Cold: empty "
-              "`VNHC_GYM_CACHE_DIR` and `NUMBA_CACHE_DIR`; cached: the same dirs, filled.", "",
+              "`VNHC_GYM_CACHE_DIR` and `NUMBA_CACHE_DIR`; cached: the same dirs, filled; \"- import\" is the "
+              "median of paired differences (each cached run right after an `import gymnasium` run).", "",
               "| env | cold | cached | cached - import gymnasium | + step: cold | + step: cached | "
               "+ step: cached - import | floor < 1 s |", "|---|---:|---:|---:|---:|---:|---:|:---:|"]
     for env_id, r in jit["envs"].items():
@@ -322,15 +420,18 @@ def main(argv: list[str] | None = None) -> int:
     cycle = 40 if quick else vnhc_gym.MAX_EPISODE_STEPS + 1
     vector = bench_vector(QUICK_SIZES if quick else SIZES, repeats=repeats, cycle=cycle,
                           sync_budget=2_000 if quick else 16_000, log=log)
+    n_big = (QUICK_SIZES if quick else SIZES)[-1]
+    log(f"USV bound at N = {n_big} ...")
+    usv_bound = bench_usv_bound(n_big, repeats=repeats, cycle=cycle)
     log("JIT start-up ...")
-    jit = bench_jit(repeats=1 if quick else 3, cold=not quick)
+    jit = bench_jit(repeats=1 if quick else 5, cold=not quick)
     res: dict[str, Any] = {
         "meta": {"quick": quick, "repeats": repeats, "platform": platform.platform(), "cpus": os.cpu_count(),
                  "python": platform.python_version(), "numpy": np.__version__, "numba": numba.__version__,
                  "threading_layer": _threading_layer(), "gymnasium": gym.__version__,
                  "load_before": list(load_before), "load_after": list(os.getloadavg()),
                  "seconds": time.perf_counter() - t_start, "command": " ".join([sys.executable, *sys.argv])},
-        "single": single, "vector": vector, "jit": jit}
+        "single": single, "vector": vector, "usv_bound": usv_bound, "jit": jit}
     res["floors"] = floors(res)
     text = report(res)
     args.out.mkdir(parents=True, exist_ok=True)

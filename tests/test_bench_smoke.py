@@ -27,7 +27,13 @@ def test_bench_envs_quick(tmp_path: Path) -> None:
     assert all(r["rollout_steps_per_s"] > 0 and r["sync_steps_per_s"] > 0 and r["cartpole_steps_per_s"] > 0
                for r in res["vector"].values())
     assert res["jit"]["import_gymnasium_s"] > 0 and len(res["jit"]["envs"]) == 2
+    assert all(len(r["reset_over_import_samples_s"]) == 1 for r in res["jit"]["envs"].values())
+    bound = res["usv_bound"]
+    assert bound["n"] == 256 and bound["cartpole_steps_per_s"] > 0
+    assert set(bound["rows"]) == {"random", "northeast", "rk4", "advance"}
+    assert all(r["steps_per_s"] > 0 for r in bound["rows"].values())
     assert res["floors"] and all(isinstance(f["pass"], bool) for f in res["floors"])
     text = (out / "bench_envs.md").read_text()
     assert "Pendulum-v1" in text and "CartPole" in text and ("PASS" in text or "FAIL" in text)
+    assert "RK4 alone" in text
     assert text in proc.stdout  # the printed table is the written one
