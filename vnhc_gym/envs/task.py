@@ -472,7 +472,9 @@ class ConstraintTask:
         self._gains = np.zeros((n, model.n_gains))
         self._lo = -self.force_bound
         self._hi = self.force_bound.copy()
-        assert n_p == self.params_true.shape[1]
+        if self.params_true.shape[1] != n_p:
+            raise ValueError(f"model.default_params has {self.params_true.shape[1]} entries, expected one per "
+                             f"name in model.param_names ({n_p})")
         self.impulse_scale = config.impulse_scale if config.impulse_scale is not None else default_impulse
         #: Per-row SplitMix64 states (see vnhc_gym.envs._random); seeded by seed_rows.
         self.rng = np.zeros(n, dtype=np.uint64)
