@@ -52,6 +52,7 @@ import gymnasium as gym
 import numpy as np
 
 import vnhc_gym
+from vnhc_gym.envs.task import N_CHUNKS
 
 ENV_IDS = vnhc_gym.ENV_IDS
 PENDULUM = "Pendulum-v1"
@@ -252,18 +253,14 @@ class KernelTimer:
         env = gym.make_vec(USV, num_envs=n, vectorization_mode="vector_entry_point")
         env.reset(seed=0)
         task: Any = env.unwrapped.task  # type: ignore[attr-defined]
-        state = task.state.copy()
-        params = task.params_true.copy()
-        next_state, u_out, flags = np.empty_like(state), np.empty_like(task.force), np.empty(n, dtype=np.int64)
-        common = (task._gains, 0, task._lo, task._hi, task.config.dt, task.config.substeps, task.model.singular_tol,
-                  next_state, u_out, flags)
+        # The task's own argument tuple of advance (state, params, force, ..., NEXT, ..., aux); the
+        # env is never stepped again, so the kernels may work on its buffers.  force is 0 after reset.
+        aargs = task._advance_args[:17]
         if kind == "rk4":
             u = draw_actions(env.single_action_space, (n,), np.random.default_rng(1)).astype(np.float64)
-            self.kernel, self.args = task.k.rk4_parallel, (state, params, task.force_bound * u, *common, 2)
+            self.kernel, self.args = task.k.rk4_parallel, (*aargs[:2], task.force_bound * u, *aargs[3:13], N_CHUNKS)
         elif kind == "advance":
-            self.kernel = task.k.advance_parallel
-            self.args = (state, params, np.zeros_like(task.force), *common, np.zeros((0, task.model.n)),
-                         np.empty_like(task.phi), params, np.empty_like(task.aux), 2)
+            self.kernel, self.args = task.k.advance_parallel, (*aargs, N_CHUNKS)
         else:
             raise ValueError(f"kind must be 'rk4' or 'advance', got {kind!r}")
         self.n, self.steps = n, steps
@@ -282,8 +279,9 @@ class KernelTimer:
 def bench_usv_bound(n: int, repeats: int, cycle: int) -> dict[str, Any]:
     """The USV at ``n`` against CartPoleVectorEnv, timed together: the native env (default
     ``random`` current), the same env with the constant ``northeast`` current, and the random
-    current's open-loop RK4 alone.  If the RK4 alone is below CartPoleVectorEnv's whole step,
-    no USV step with that current can reach the CartPole floor on this machine."""
+    current's kernels alone (:class:`KernelTimer`).  If ``advance`` alone is below
+    CartPoleVectorEnv's whole step, no USV step with that current can reach the CartPole floor
+    on this machine."""
     timers: dict[str, Any] = {CARTPOLE: VectorTimer(CARTPOLE, n, cycle), "random": VectorTimer(USV, n, cycle),
                               "northeast": VectorTimer(USV, n, cycle, current="northeast"),
                               "rk4": KernelTimer("rk4", n, cycle), "advance": KernelTimer("advance", n, cycle)}
