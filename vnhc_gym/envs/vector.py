@@ -1,223 +1,103 @@
-"""Native vector versions of the environments: one batched task, one kernel call per step.
+"""The native vector environment of any task: ``num_envs`` episodes in one batch, one kernel call a step.
 
-``FlockingAlignVectorEnv(num_envs, **kwargs)`` and ``USVStreamVectorEnv(num_envs, **kwargs)``
-(also ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point", **kwargs)``) hold
-*one* :class:`~vnhc_gym.envs.task.ConstraintTask` with ``B = num_envs`` rows, built by the same
-task class from the same validated arguments as the single environment.  They reproduce
-``gymnasium.vector.SyncVectorEnv`` over ``num_envs`` single environments made with
-``gym.make(id, max_episode_steps=..., **kwargs)`` exactly: observations, rewards, terminations,
-truncations and infos (Gymnasium's dict-of-arrays convention with ``_key`` masks), in both
-``AutoresetMode.NEXT_STEP`` (default) and ``AutoresetMode.SAME_STEP`` (``final_obs`` /
-``final_info``), and ``AutoresetMode.DISABLED`` (reset finished sub-envs yourself with
-``reset(options={"reset_mask": mask})``).  ``reset(seed=s)`` seeds sub-env ``i`` with ``s + i``
-like ``SyncVectorEnv`` does.
-
-A step costs a constant number of numpy / numba calls whatever ``num_envs`` is, resets
-included: every sub-environment draws its episodes from its own SplitMix64 stream inside the
-compiled kernels (:mod:`vnhc_gym.envs._random`), seeded like the single env's.
+``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point", **kwargs)`` builds the
+task's subclass of :class:`ConstraintVectorEnv`.  It reproduces ``gymnasium.vector.SyncVectorEnv``
+over ``N`` single environments made with ``gym.make(id, **kwargs)`` exactly: observations, rewards,
+terminations, truncations and infos (Gymnasium's dict-of-arrays convention with ``_key`` masks), in
+``AutoresetMode.NEXT_STEP`` (default), ``SAME_STEP`` (``final_obs`` / ``final_info``) and
+``DISABLED`` (reset finished sub-envs yourself with ``reset(options={"reset_mask": mask})``).
+``reset(seed=s)`` seeds sub-env ``i`` with ``s + i`` as ``SyncVectorEnv`` does.
 """
 
 from __future__ import annotations
 
-import inspect
-import sys
 from typing import Any, ClassVar
 
-import gymnasium as gym
 import numpy as np
 from gymnasium.error import Error, ResetNeeded
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
-from numba import njit
 from numpy.typing import NDArray
 
-from vnhc_gym import MAX_EPISODE_STEPS
-from vnhc_gym.envs.flocking_align import FlockingAlignEnv, FlockingTask
-from vnhc_gym.envs.task import REASONS, STATUS_OK, ConstraintTask
-from vnhc_gym.envs.usv_stream import USVStreamEnv, USVTask
+from vnhc_gym.envs.config import check_integer
+from vnhc_gym.envs.env import ConstraintEnv, check_action_array
+from vnhc_gym.envs.runtime import Batch
 
-__all__ = ["ConstraintVectorEnv", "FlockingAlignVectorEnv", "USVStreamVectorEnv"]
+__all__ = ["ConstraintVectorEnv", "MAX_EPISODE_STEPS"]
 
-#: ``termination_reason`` by status code (``REASONS``; None for ``STATUS_OK``), for ``take``.
-_REASON_TABLE = np.array([REASONS.get(code) for code in range(max(REASONS) + 1)], dtype=object)
-
-
-@njit(cache=True)
-def accept_actions(actions: np.ndarray, skip: np.ndarray, bound: np.ndarray, force: np.ndarray,
-                   action_out: np.ndarray) -> int:
-    """Batched :func:`~vnhc_gym.envs.task.check_action`.
-
-    Returns the first row (not ``skip``-ped) with a non-finite entry and writes nothing, or -1
-    after writing ``action_out[r] = clip(actions[r], -1, 1)`` (the applied action, charged by
-    the action cost) and ``force[r] = action_out[r] * bound[r]`` (zeros for skipped rows, whose
-    action is ignored).  ``actions``, ``bound`` (the force bound tiled over the rows), ``force``
-    and ``action_out`` have the same shape and are C-contiguous.
-    """
-    n, m = actions.shape
-    flat = actions.reshape(-1)  # C-contiguous (see ConstraintVectorEnv.step)
-    finite = True
-    for i in range(flat.shape[0]):  # a branch-free (vectorised) test first: x - x is NaN for NaN, inf
-        finite &= (flat[i] - flat[i]) == 0.0
-    if not finite:
-        for r in range(n):
-            if skip[r]:
-                continue
-            for j in range(m):
-                if not np.isfinite(actions[r, j]):
-                    return r
-    # Flat loops over all entries (vectorised); a loop per row over m entries is not.
-    bd = bound.reshape(-1)
-    fo = force.reshape(-1)
-    ao = action_out.reshape(-1)
-    for i in range(flat.shape[0]):
-        a = min(max(flat[i], -1.0), 1.0)
-        fo[i] = a * bd[i]
-        ao[i] = a
-    for r in range(n):
-        if skip[r]:
-            for j in range(m):
-                fo[r * m + j] = 0.0
-                ao[r * m + j] = 0.0
-    return -1
+#: Episode length of the registered environments (400 steps of 0.05 s = 20 s).
+MAX_EPISODE_STEPS = 400
 
 
-@njit(cache=True)
-def step_outcome(status: np.ndarray, steps: np.ndarray, max_steps: int, terminated: np.ndarray,
-                 truncated: np.ndarray, ended: np.ndarray) -> int:
-    """``terminated = status != OK``, ``truncated = steps >= max_steps`` (never if
-    ``max_steps <= 0``) and ``ended = terminated | truncated``; returns the number of ended rows."""
-    n_ended = 0
-    for r in range(status.shape[0]):
-        term = status[r] != STATUS_OK
-        trunc = max_steps > 0 and steps[r] >= max_steps
-        terminated[r] = term
-        truncated[r] = trunc
-        ended[r] = term or trunc
-        if term or trunc:
-            n_ended += 1
-    return n_ended
-
-
-@njit(cache=True)
-def restart_outcome(rows: np.ndarray, reset_mask: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
-                    pending: np.ndarray, reward: np.ndarray) -> int:
-    """The outcome of sub-envs ``rows`` that ``NEXT_STEP``-reset at this step: marked in
-    ``reset_mask``, not terminated, truncated or pending, reward 0.  Returns the number of
-    sub-envs still pending (ended at this step)."""
-    for i in range(rows.shape[0]):
-        r = rows[i]
-        reset_mask[r] = True
-        terminated[r] = False
-        truncated[r] = False
-        pending[r] = False
-        reward[r] = 0.0
-    return int(np.count_nonzero(pending))
-
-
-def _check_seed(seed: Any) -> None:
+def _check_seed(seed: Any) -> int:
     """The single env's seed rule (``gymnasium.utils.seeding.np_random``): an int >= 0."""
-    if not isinstance(seed, int):
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
         raise Error(f"Seed must be a python integer, actual type: {type(seed)}")
     if seed < 0:
         raise Error(f"Seed must be greater or equal to zero, actual value: {seed}")
-
-
-class _RowView:
-    """Row ``i`` of a batched task seen as a ``B = 1`` task, for the single env's ``render``."""
-
-    ROW_ARRAYS = frozenset({"state", "next_state", "phi", "aux", "obs", "obs32", "params_true", "params_nominal",
-                            "force", "force_applied", "action", "reward", "abs_phi", "status", "steps"})
-
-    def __init__(self, task: ConstraintTask, i: int) -> None:
-        self._task = task
-        self._i = i
-
-    def __getattr__(self, name: str) -> Any:
-        value = getattr(self._task, name)
-        if name in self.ROW_ARRAYS:
-            return value[self._i: self._i + 1]
-        return value
-
-    def current_params(self, i: int) -> dict[str, float]:
-        return self._task.current_params(self._i + i)  # type: ignore[attr-defined]
+    return int(seed)
 
 
 class ConstraintVectorEnv(VectorEnv):
-    """Shared implementation of the native vector environments (see the module docstring).
+    """``num_envs`` episodes of one task in one batch (see the module docstring).
 
     Parameters
     ----------
     num_envs : int
-        Number of sub-environments (rows of the batched task).
+        Number of sub-environments.
     max_episode_steps : int or None
         Truncation after this many steps of a sub-environment's episode, like ``gym.make``'s
-        ``TimeLimit`` (default ``vnhc_gym.MAX_EPISODE_STEPS``, 400; None: never truncate).
+        ``TimeLimit`` (default 400; None: never truncate).
     autoreset_mode : AutoresetMode or str
         ``NEXT_STEP`` (default), ``SAME_STEP`` or ``DISABLED``, as in ``SyncVectorEnv``.
     **kwargs
         Every keyword argument of the single environment (``scenario``, ``render_mode``, ...),
-        validated by the single environment's own constructor.
+        checked by the single environment's own constructor.
 
     Attributes
     ----------
-    task : ConstraintTask
-        The batched task (``task.n == num_envs``); ``task.set_feedback(...)`` acts on all rows.
+    batch : Batch
+        The batch of episodes (``batch.n == num_envs``); ``batch.set_feedback(...)`` acts on all rows.
+    task : Task
+        The configured task, shared by every sub-environment.
     """
 
-    single_env_cls: ClassVar[type[gym.Env]]
-    task_cls: ClassVar[type[ConstraintTask]]
+    env_class: ClassVar[type[ConstraintEnv]]
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 20,  # type: ignore[misc]
                                           "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 1, *, max_episode_steps: int | None = MAX_EPISODE_STEPS,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **kwargs: Any) -> None:
-        if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
-        if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(
-                max_episode_steps, int | np.integer) or max_episode_steps < 1):
-            raise ValueError(f"max_episode_steps must be an integer >= 1 or None, got {max_episode_steps!r}")
+        n = check_integer("num_envs", num_envs, low=1, high=10_000_000)
+        if max_episode_steps is not None:
+            max_episode_steps = check_integer("max_episode_steps", max_episode_steps, low=1)
         try:
             mode = autoreset_mode if isinstance(autoreset_mode, AutoresetMode) else AutoresetMode(autoreset_mode)
         except ValueError:
             raise ValueError(f"autoreset_mode must be one of {[m.value for m in AutoresetMode]}, "
                              f"got {autoreset_mode!r}") from None
-        n = int(num_envs)
-        # The single env's constructor validates every argument (same errors as gym.make); the
-        # batched task is then built by the same task class from the same arguments.
-        self._proto = self.single_env_cls(**kwargs)
-        task_args = [p.name for p in inspect.signature(self.task_cls.__init__).parameters.values()
-                     if p.kind is inspect.Parameter.KEYWORD_ONLY]
-        proto_task: ConstraintTask = self._proto.task  # type: ignore[attr-defined]
-        self.task: ConstraintTask = self.task_cls(proto_task.config, n,  # type: ignore[call-arg, arg-type]
-                                                  **{k: v for k, v in kwargs.items() if k in task_args})
-        if not (np.array_equal(self.task.params_nominal[0], proto_task.params_nominal[0])
-                and np.array_equal(self.task.force_bound, proto_task.force_bound)
-                and self.task.obs_dim == proto_task.obs_dim):  # pragma: no cover - guards future drift
-            raise RuntimeError(f"{type(self).__name__}: the batched task does not match the single env's")
-        self._proto.task = self.task  # type: ignore[attr-defined]  # its render() draws row 0 of the batch
-
+        # The single env's constructor checks every argument and configures the task (same errors as
+        # gym.make); it also draws sub-environment 0 when rendering.
+        self._proto = self.env_class(**kwargs)
+        self.task = self._proto.task
+        self.batch = Batch(self.task, n)
+        self._proto.batch = self.batch
         self.num_envs = n
-        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
+        self.max_episode_steps = max_episode_steps
         self.autoreset_mode = mode
         self.metadata = {**type(self).metadata, **self._proto.metadata, "autoreset_mode": mode}  # type: ignore[misc]
         self.render_mode = self._proto.render_mode
         self.config = self.task.config
-        self.scenario = kwargs.get("scenario", "nominal")
+        self.scenario = self._proto.scenario
+        self.dt = self._proto.dt
         self.single_observation_space = self._proto.observation_space
         self.single_action_space = self._proto.action_space
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
-        self._act_shape = (n, *self.single_action_space.shape)  # type: ignore[misc]
-        self._bound = np.tile(self.task.force_bound, (n, 1))  # per entry: accept_actions' flat loop
-        self._dt = self.task.config.dt
-        self._unreset = np.ones(n, dtype=np.bool_)  # sub-envs never reset yet (stepping them is an error)
-        self._ready = False
+        self._all = np.arange(n, dtype=np.intp)
+        self._ready = np.zeros(n, dtype=np.bool_)  # sub-envs reset at least once
         self._seeds: list[int | None] = [None] * n
-        self._autoreset = np.zeros(n, dtype=np.bool_)  # sub-envs whose episode ended at the last step
-        self._n_pending = 0
-        self._max_steps = 0 if max_episode_steps is None else int(max_episode_steps)
-        self._true = np.ones(n, dtype=np.bool_)
-        self._no_skip = np.zeros(n, dtype=np.bool_)
+        self._pending = np.zeros(n, dtype=np.bool_)  # sub-envs whose episode ended at the last step
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
@@ -231,16 +111,14 @@ class ConstraintVectorEnv(VectorEnv):
         if seed is None:
             seeds: list[int | None] = [None] * n
         elif isinstance(seed, int | np.integer) and not isinstance(seed, bool):
-            _check_seed(int(seed))
-            seeds = [int(seed) + i for i in range(n)]
+            s0 = _check_seed(seed)
+            seeds = [s0 + i for i in range(n)]
         else:
             seeds = list(seed)  # type: ignore[arg-type]
             if len(seeds) != n:
                 raise ValueError(f"If seeds are passed as a list the length must match num_envs={n} "
                                  f"but got length={len(seeds)}.")
-            for s in seeds:
-                if s is not None:
-                    _check_seed(s)
+            seeds = [None if s is None else _check_seed(s) for s in seeds]
         mask = None
         if options is not None and "reset_mask" in options:
             mask = options["reset_mask"]
@@ -253,22 +131,20 @@ class ConstraintVectorEnv(VectorEnv):
             if not np.any(mask):
                 raise ValueError(f"`options['reset_mask']` must contain a boolean array with at least one True "
                                  f"value, got reset_mask={mask}")
-        rows = np.arange(n) if mask is None else np.flatnonzero(mask)
+        rows = self._all if mask is None else np.flatnonzero(mask)
         row_seeds = [seeds[i] for i in rows.tolist()]
         for i, s in zip(rows.tolist(), row_seeds, strict=True):
-            if s is not None or not self.task._seeded[i]:
+            if s is not None or not self.batch.seeded[i]:
                 self._seeds[i] = s
-        self.task.seed_rows(rows, row_seeds)
-        self.task.reset_rows(rows)
-        self._autoreset[rows] = False
-        self._n_pending = int(np.count_nonzero(self._autoreset))
-        self._unreset[rows] = False
-        self._ready = not self._unreset.any()
-        obs, infos = self._infos(None if mask is None else mask.copy())
-        self._add_params(infos, np.ones(n, dtype=np.bool_) if mask is None else mask.copy())
+        self.batch.seed(rows, row_seeds)
+        self.batch.reset(rows)
+        self._pending[rows] = False
+        self._ready[rows] = True
+        infos = self.batch.batch_info(None if mask is None else mask.copy())
+        self._add_params(infos, rows)
         if self.render_mode == "human":
             self.render()
-        return obs, infos
+        return self.batch.buf.obs32.copy(), infos
 
     def step(self, actions: Any) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.bool_],
                                           NDArray[np.bool_], dict[str, Any]]:
@@ -276,82 +152,65 @@ class ConstraintVectorEnv(VectorEnv):
 
         Raises ``ValueError`` (and changes nothing) for a wrong shape or a non-finite row.
         """
-        if not self._ready:
+        if not self._ready.all():
             raise ResetNeeded("Cannot call step() before calling reset() (on every sub-environment)")
-        a = actions if isinstance(actions, np.ndarray) else np.asarray(actions, dtype=np.float64)
-        if a.shape != self._act_shape:
-            raise ValueError(f"actions must have shape {self._act_shape}, got {a.shape}")
-        if a.dtype != np.float64 and a.dtype != np.float32:
-            if a.dtype.kind not in "fiub":
-                raise ValueError(f"actions must be real numbers, got dtype {a.dtype}")
-            a = a.astype(np.float64)
-        if not a.flags.c_contiguous:
-            a = np.ascontiguousarray(a)
-        task = self.task
+        n = self.num_envs
+        a = check_action_array(actions, (n, self.task.act_dim), "actions")
+        batch = self.batch
         mode = self.autoreset_mode
-        n_pending = self._n_pending
-        if n_pending and mode is AutoresetMode.DISABLED:
+        pending = self._pending
+        restart = pending.any()
+        if restart and mode is AutoresetMode.DISABLED:
             raise RuntimeError("autoreset_mode=DISABLED: reset the finished sub-environments with "
                                "reset(options={'reset_mask': mask}) before stepping them again")
-        next_step = n_pending > 0 and mode is AutoresetMode.NEXT_STEP
-        pending = self._autoreset
-        bad = accept_actions(a, pending if next_step else self._no_skip, self._bound, task.force, task.action)
+        next_step = restart and mode is AutoresetMode.NEXT_STEP
+        rows = np.flatnonzero(~pending) if next_step else self._all
+        bad = batch.act(rows, np.ascontiguousarray(a[rows]) if next_step else a)
         if bad >= 0:
-            raise ValueError(f"actions must be finite, got row {bad}: {a[bad]!r}")
-        # The step's own pass fills the info copies (rows reset below are copied again after).
-        bufs = task.info_buffers()
+            raise ValueError(f"actions must be finite, got row {rows[bad]}: {a[rows[bad]]!r}")
+        batch.step(rows)
+        buf = batch.buf
+        terminated = buf.status != 0
+        # As gym.make's TimeLimit: truncated at the time limit whether or not the episode also terminated.
+        truncated = buf.steps >= self.max_episode_steps if self.max_episode_steps else np.zeros(n, dtype=np.bool_)
+        reward = buf.reward.copy()
+        final: dict[str, Any] = {}
+        reset_rows = None
         if next_step:
-            rows = np.flatnonzero(pending)
-            # These rows are only reset this step (their step is discarded): they draw nothing.
-            status = task.step(pending, info=bufs)
-        else:
-            status = task.step(info=bufs)
-        n = self.num_envs
-        terminated = np.empty(n, dtype=np.bool_)
-        truncated = np.empty(n, dtype=np.bool_)
-        self._n_pending = step_outcome(status, task.steps, self._max_steps, terminated, truncated, pending)
-        reward = task.reward.copy()
-        final: dict[str, Any] | None = None
-        reset_mask = None
-        if next_step:
-            task.reset_rows(rows, bufs)
-            reset_mask = np.zeros(n, dtype=np.bool_)
-            self._n_pending = restart_outcome(rows, reset_mask, terminated, truncated, pending, reward)
-        elif self._n_pending and mode is AutoresetMode.SAME_STEP:
-            done = pending.copy()
-            rows = np.flatnonzero(done)
+            # Sub-envs that ended at the last step are reset instead of stepped (as SyncVectorEnv does).
+            reset_rows = np.flatnonzero(pending)
+            batch.reset(reset_rows)
+            terminated[reset_rows] = False
+            truncated[reset_rows] = False
+            reward[reset_rows] = 0.0
+        done = terminated | truncated
+        if mode is AutoresetMode.SAME_STEP and done.any():
+            reset_rows = np.flatnonzero(done)
             final_obs = np.full(n, None, dtype=object)
-            for i in rows.tolist():
-                final_obs[i] = task.obs32[i].copy()
-            # The step's info, before the reset (copies: bufs gets the reset rows' infos below).
-            step_info = task.info_from(tuple(b.copy() for b in bufs))
-            final = {"final_obs": final_obs, "_final_obs": done, "final_info": self._infos(done.copy(), step_info)[1],
-                     "_final_info": done.copy()}
-            task.reset_rows(rows, bufs)
-            reset_mask = done
-        obs, infos = self._infos(info=task.info_from(bufs))
-        if reset_mask is not None:
-            self._add_params(infos, reset_mask, rows)
-        if final is not None:
-            infos.update(final)
+            for i in reset_rows.tolist():
+                final_obs[i] = buf.obs32[i].copy()
+            final = {"final_obs": final_obs, "_final_obs": done.copy(),
+                     "final_info": batch.batch_info(done.copy()), "_final_info": done.copy()}
+            batch.reset(reset_rows)
+            self._pending[:] = False
+        else:
+            self._pending[:] = done
+        infos = batch.batch_info()
+        if reset_rows is not None:
+            self._add_params(infos, reset_rows)
+        infos.update(final)
         if self.render_mode == "human":
             self.render()
-        return obs, reward, terminated, truncated, infos
+        return buf.obs32.copy(), reward, terminated, truncated, infos
 
     def render(self) -> tuple[NDArray[np.uint8], ...] | None:
         """``rgb_array``: one frame per sub-environment (drawn by the single env's renderer);
         ``human``: shows sub-environment 0 and returns None."""
-        proto: Any = self._proto
+        proto = self._proto
         if self.render_mode != "rgb_array":
-            return proto.render()
-        frames = []
-        try:
-            for i in range(self.num_envs):
-                proto.task = _RowView(self.task, i)
-                frames.append(proto.render())
-        finally:
-            proto.task = self.task
-        return tuple(frames)
+            return proto.render()  # type: ignore[return-value]
+        frames = [proto._draw(i) for i in range(self.num_envs)]
+        return tuple(f for f in frames if f is not None)
 
     def close_extras(self, **kwargs: Any) -> None:
         self._proto.close()
@@ -365,7 +224,7 @@ class ConstraintVectorEnv(VectorEnv):
     def get_attr(self, name: str) -> tuple[Any, ...]:
         """An attribute for every sub-environment (shared ones repeated; ``np_random_seed`` per row)."""
         if name == "np_random_seed":
-            return getattr(self, name)
+            return self.np_random_seed
         value = getattr(self, name) if hasattr(self, name) else getattr(self._proto, name)
         return (value,) * self.num_envs
 
@@ -390,65 +249,12 @@ class ConstraintVectorEnv(VectorEnv):
         setattr(self, name, values)
 
     # ------------------------------------------------------------------ internals
-    def _infos(self, rows: NDArray[np.bool_] | None = None, info: tuple[NDArray[np.float32], dict[str, Any], int]
-               | None = None) -> tuple[NDArray[np.float32], dict[str, Any]]:
-        """A copy of the observations and the batched info of all rows (or of ``rows``: zeros
-        and False masks elsewhere), as ``SyncVectorEnv`` assembles the single envs' ``info``;
-        from ``info`` (``task.info_from``) if given, else from ``task.batch_info()``."""
-        task = self.task
-        status = task.status
-        obs, values, n_bad = task.batch_info() if info is None else info
-        infos: dict[str, Any] = {}
-        if rows is None:
-            true = self._true
-            for key, value in values.items():
-                infos[key] = value
-                infos["_" + key] = true.copy()
-            ended = status != STATUS_OK if n_bad else None
-        else:
-            off = ~rows
-            for key, value in values.items():
-                value[off] = 0
-                infos[key] = value
-                infos["_" + key] = rows.copy()
-            ended = (status != STATUS_OK) & rows if n_bad else None
-        if ended is not None and ended.any():
-            # None where OK (every row that has no reason, masked-off rows included).
-            infos["termination_reason"] = _REASON_TABLE.take(status if rows is None else np.where(rows, status, 0))
-            infos["_termination_reason"] = ended
-        return obs, infos
-
-    def _add_params(self, infos: dict[str, Any], rows: NDArray[np.bool_], idx: NDArray[np.intp] | None = None
-                    ) -> None:
-        """The reset info's ``params`` (the new episodes' true parameters) for the sub-envs in
-        ``rows`` (``idx``: the same as indices, if known) that were just reset (zeros and a False
-        mask elsewhere, as SyncVectorEnv merges it)."""
-        buf = self.__dict__.get("_params_buf")
-        if idx is None:
-            idx = np.flatnonzero(rows)
-        # Refill the last call's array if nobody else holds it (references: the tuple and
-        # getrefcount's argument): a fresh (n, n_params) array every step page-faults at large n.
-        # Integer rows, not the mask: a few reset rows of a big batch are a few row copies.
-        if buf is not None and sys.getrefcount(buf[0]) <= 2:
-            params, last = buf
-            params[last] = 0.0
-        else:
-            params = np.zeros_like(self.task.params_true)
-        params[idx] = self.task.params_true[idx]
-        self._params_buf = (params, idx)
+    def _add_params(self, infos: dict[str, Any], rows: NDArray[np.intp]) -> None:
+        """The reset info's ``params`` (the new episodes' true parameters) of ``rows``, zeros and a
+        False mask elsewhere (as SyncVectorEnv merges it)."""
+        params = np.zeros_like(self.batch.buf.params_true)
+        params[rows] = self.batch.buf.params_true[rows]
+        mask = np.zeros(self.num_envs, dtype=np.bool_)
+        mask[rows] = True
         infos["params"] = params
-        infos["_params"] = rows
-
-
-class FlockingAlignVectorEnv(ConstraintVectorEnv):
-    """``num_envs`` copies of :class:`~vnhc_gym.envs.flocking_align.FlockingAlignEnv` in one batch."""
-
-    single_env_cls = FlockingAlignEnv
-    task_cls = FlockingTask
-
-
-class USVStreamVectorEnv(ConstraintVectorEnv):
-    """``num_envs`` copies of :class:`~vnhc_gym.envs.usv_stream.USVStreamEnv` in one batch."""
-
-    single_env_cls = USVStreamEnv
-    task_cls = USVTask
+        infos["_params"] = mask

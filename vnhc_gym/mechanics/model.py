@@ -18,8 +18,9 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vnhc_gym.mechanics._kernels import FLAG_NONFINITE, FLAG_SINGULAR
-from vnhc_gym.mechanics.codegen import load_module, recipe_key, sources_digest
+from vnhc_gym.mechanics.cache import load_module
+from vnhc_gym.mechanics.codegen import module_key, recipe_parts
+from vnhc_gym.mechanics.kernels import FLAG_NONFINITE, FLAG_SINGULAR
 
 if TYPE_CHECKING:  # the symbolic layer (sympy) is imported only when a model needs it
     import sympy as sp
@@ -36,10 +37,9 @@ FEEDBACK_MODES: dict[str, int] = {"open": 0, "continuous": 1, "sampled": 2}
 
 Array = NDArray[np.float64]
 
-#: Files whose text defines every system's symbolic content and generated code; their hash is
-#: part of every recipe's cache key (:meth:`ConstrainedSystem.from_recipe`).
-CORE_SOURCES: tuple[Path, ...] = tuple(Path(__file__).with_name(f) for f in ("system.py", "constraint.py",
-                                                                            "codegen.py"))
+#: Names every generated system module defines (a cache entry without one of them is rebuilt).
+KERNELS = ("rk4", "rk4_row", "law", "law_row", "work", "phi", "phi_h", "aux", "cg", "dyn", "energy", "_phi", "_aux",
+           "NAME", "N", "M", "NP", "NG", "NAUX", "HOLONOMIC", "PARAM_NAMES", "PARAM_DEFAULTS", "OUTPUT_NAMES")
 
 Parts = tuple["MechanicalSystem", "VelocityConstraint | HolonomicConstraint", "dict[str, sp.Expr]"]
 #: A recipe's builder: returns ``(system, constraint)`` or ``(system, constraint, outputs)``.
@@ -80,9 +80,10 @@ class ConstrainedSystem:
         at the boat), evaluated by :meth:`outputs`.
     singular_tol : float, default 1e-10
         ``C`` counts as singular when a pivot of its LU factorisation (partial pivoting) is at
-        most ``singular_tol * max(1, max|C|)``; when ``C`` is diagonal by construction (the
-        generated code checks this symbolically) each diagonal entry is tested on its own,
-        ``|C_bb| <= singular_tol * max(1, |C_bb|)``.
+        most ``singular_tol * max|C|``, when ``C`` is zero, or when an entry is not finite; when
+        ``C`` is diagonal by construction (the generated code checks this symbolically) the pivots
+        are its diagonal entries.  The test is relative to ``C``'s own scale: multiplying ``C`` by a
+        nonzero number (a mass in other units, say) never changes the verdict.
 
     Notes
     -----
@@ -90,8 +91,8 @@ class ConstrainedSystem:
     ``param_names``; every method takes ``params=None`` (defaults), a vector, or a
     ``(B, n_params)`` batch.
 
-    The constructor keys the generated-code cache on the symbolic input itself, so it needs
-    sympy.  :meth:`from_recipe` (used by the shipped systems) keys it on a small recipe and the
+    The constructor keys the generated-code cache on the symbolic input itself (and on the text of
+    the core files that derive and compile it), so it needs sympy.  :meth:`from_recipe` (used by the shipped systems) keys it on a small recipe and the
     source files instead, and builds the symbolic side only when it is asked for: a warm start
     neither imports sympy nor derives anything.
     """
@@ -123,8 +124,8 @@ class ConstrainedSystem:
                sp.srepr(system.control_forces), sp.srepr(system.potential), sp.srepr(system.external_force),
                sp.srepr(tuple(system.params)), str(holonomic), sp.srepr(expr),
                sp.srepr(tuple(self._outputs.items()))]
-        self._key = key
-        self.kernels = load_module(key, self._make_source)
+        self._key = module_key(key)
+        self.kernels = self._load()
         # From the symbolic input, not the module: the key does not cover the default values.
         self.name = system.name
         self.n = system.n
@@ -150,9 +151,8 @@ class ConstrainedSystem:
             be picklable: a module-level function or a ``functools.partial`` of one, not a lambda.
         sources : iterable of path
             The files that define what ``build`` returns (its own module, the modules it draws
-            expressions from).  The cache key is ``recipe`` + ``CODEGEN_VERSION`` + a sha256 of
-            their text and of ``system.py``, ``constraint.py`` and ``codegen.py``: editing any
-            of them regenerates the module.  A change that these files do not show (a builder
+            expressions from).  The cache key is ``recipe`` + a sha256 of their text and of the
+            core files (``codegen.CORE_SOURCES``): editing any of them regenerates the module.  A change that these files do not show (a builder
             reading a data file, say) must change ``recipe``.
         singular_tol : float, default 1e-10
 
@@ -169,8 +169,8 @@ class ConstrainedSystem:
         self._build = build
         self._parts = None
         self._law = None
-        self._key = recipe_key(self._recipe, sources_digest([*CORE_SOURCES, *sources]))
-        self.kernels = k = load_module(self._key, self._make_source)
+        self._key = module_key(recipe_parts(self._recipe), sources)
+        self.kernels = k = self._load()
         self.name = str(k.NAME)
         self.n = int(k.N)
         self.m = int(k.M)
@@ -180,6 +180,10 @@ class ConstrainedSystem:
         self.default_params = np.array(k.PARAM_DEFAULTS, dtype=np.float64)
         self.output_names = tuple(k.OUTPUT_NAMES)
         return self
+
+    def _load(self) -> ModuleType:
+        label = "/".join(map(str, self._recipe)) if self._recipe is not None else self._symbolic_parts()[0].name
+        return load_module(self._key, self._make_source, label=label, required=KERNELS)
 
     def _make_source(self) -> str:
         from vnhc_gym.mechanics.codegen import generate_source
@@ -198,7 +202,7 @@ class ConstrainedSystem:
 
     def __setstate__(self, state: dict[str, object]) -> None:
         self.__dict__.update(state)
-        self.kernels = load_module(self._key, self._make_source)
+        self.kernels = self._load()
 
     # ------------------------------------------------------------------ symbolic side
     def _symbolic_parts(self) -> Parts:
@@ -425,8 +429,9 @@ class ConstrainedSystem:
         out = np.empty_like(s)
         u_out = np.empty((b, self.m))
         flags = np.empty(b, dtype=np.int64)
-        self.kernels.rk4(s, self._params(params, b), uh, self._gains(gains, b), FEEDBACK_MODES[feedback], lo, hi,
-                         float(dt), int(substeps), self.singular_tol, out, u_out, flags)
+        p = self._params(params, b)
+        self.kernels.rk4(s, p, p, uh, self._gains(gains, b), FEEDBACK_MODES[feedback], lo, hi, float(dt),
+                         int(substeps), self.singular_tol, out, u_out, flags)
         return self._out(out, single), self._out(u_out, single), (flags[0] if single else flags)
 
     def __repr__(self) -> str:

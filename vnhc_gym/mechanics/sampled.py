@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vnhc_gym.mechanics._kernels import FLAG_NONFINITE, FLAG_SINGULAR
+from vnhc_gym.mechanics.kernels import FLAG_NONFINITE, FLAG_SINGULAR
 from vnhc_gym.mechanics.model import FEEDBACK_MODES, ConstrainedSystem
 
 __all__ = ["sampled_control"]
@@ -136,7 +136,7 @@ def sampled_control(model: ConstrainedSystem, states: ArrayLike, params: ArrayLi
         cand[:] = u[:, None, :]
         cand[:, 1:1 + m, :] += h[:, None, :] * eye[None]
         cand[:, 1 + m:, :] -= h[:, None, :] * eye[None]
-        k_.rk4(big_s, big_p, big_u, big_k, mode, lo, hi, float(dt), int(substeps), tol, out, u_out, big_flags)
+        k_.rk4(big_s, big_p, big_p, big_u, big_k, mode, lo, hi, float(dt), int(substeps), tol, out, u_out, big_flags)
         k_.phi(out, big_p, big_phi)
         ph = big_phi.reshape(b, w, m)
         bad = ((big_flags.reshape(b, w) & FLAG_NONFINITE) != 0).any(axis=1) | ~np.isfinite(ph).all(axis=(1, 2))

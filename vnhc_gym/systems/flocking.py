@@ -32,7 +32,10 @@ from vnhc_gym.mechanics import ConstrainedSystem
 if TYPE_CHECKING:
     from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint
 
-__all__ = ["flocking_system", "make_flocking", "FlockingPreset", "FLOCKING_PRESETS", "flocking_state"]
+__all__ = ["flocking_system", "make_flocking", "FlockingPreset", "FLOCKING_PRESETS", "MAX_AGENTS", "flocking_state"]
+
+#: Largest number of particles of a compiled flock.
+MAX_AGENTS = 1000
 
 
 def _check_n_agents(n_agents: int) -> int:

@@ -1,12 +1,15 @@
-"""Per-row random streams for the batched tasks (SplitMix64, compiled with numba).
+"""What a task's kernels may use: per-row random draws and inline sine and cosine.
 
-Every row of a :class:`~vnhc_gym.envs.task.ConstraintTask` (one single env, or one sub-env of a
-vector env) owns a 64-bit SplitMix64 state in a ``uint64`` array.  All of an episode's
-randomness (initial state, parameter mismatch, random current, observation noise, impulses) is
-drawn from that row's stream inside compiled kernels, so resetting 4096 sub-envs is one kernel
-call instead of 4096 Python calls to ``numpy.random.Generator`` methods, and a row's draws
-depend only on its own seed: a vector env seeded with ``s`` equals ``N`` single envs seeded
-with ``s, s + 1, ...`` draw for draw.
+Every row of a batch of episodes (one single env, or one sub-env of a vector env) owns a 64-bit
+SplitMix64 state in a ``uint64`` array (``rng``).  All of an episode's randomness (initial state,
+parameter mismatch, random current, observation noise, impulses) is drawn from that row's stream
+inside compiled kernels, so resetting 4096 sub-envs is one kernel call instead of 4096 Python
+calls to ``numpy.random.Generator`` methods, and a row's draws depend only on its own seed: a
+vector env seeded with ``s`` equals ``N`` single envs seeded with ``s, s + 1, ...`` draw for draw.
+Call the draws as ``uniform_ab(rng, r, low, high)`` with ``r`` the row.
+
+:func:`psin`, :func:`pcos` and :func:`psincos` are the sine and cosine of the generated system
+code (inline polynomials, the same bits on every machine).
 
 Why SplitMix64: one ``uint64`` of state, a few integer operations per draw, and it passes
 BigCrush (Steele, Lea and Flood, "Fast splittable pseudorandom number generators", OOPSLA
@@ -23,9 +26,10 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from vnhc_gym.mechanics._kernels import psincos
+from vnhc_gym.mechanics.kernels import pcos, psin, psincos
 
-__all__ = ["seed_states", "entropy_states", "next_u64", "uniform", "uniform_ab", "sign", "normal_pair"]
+__all__ = ["draw_mismatch", "entropy_states", "next_u64", "normal_pair", "pcos", "psin", "psincos", "seed_states", "sign", "uniform",
+           "uniform_ab"]
 
 _GAMMA = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -96,3 +100,14 @@ def seed_states(seeds: Sequence[int] | NDArray[np.uint64]) -> NDArray[np.uint64]
 def entropy_states(k: int) -> NDArray[np.uint64]:
     """``k`` stream states from operating-system entropy (unseeded resets)."""
     return np.asarray(np.random.SeedSequence().generate_state(k, dtype=np.uint64), dtype=np.uint64)
+
+
+@njit(cache=True, inline="always")
+def draw_mismatch(state: np.ndarray, r: int, nominal: np.ndarray, mask: np.ndarray, delta: float,
+                  out: np.ndarray) -> None:
+    """``out = nominal``, times ``U(1 - delta, 1 + delta)`` where ``mask`` (one draw per masked entry,
+    from row ``r``'s stream; no draw at all if ``delta == 0``)."""
+    for j in range(nominal.shape[0]):
+        out[j] = nominal[j]
+        if delta > 0 and mask[j]:
+            out[j] = nominal[j] * (1.0 + delta * (2.0 * uniform(state, r) - 1.0))

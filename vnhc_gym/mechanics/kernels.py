@@ -1,11 +1,16 @@
-"""Small numba helpers shared by every generated system module."""
+"""Numba helpers of the generated kernels: status flags, a small linear solve and inline sin/cos.
+
+Task authors may call :func:`psin`, :func:`pcos` and :func:`psincos` in their own kernels (they are
+re-exported by :mod:`vnhc_gym.kernels`): the generated system code uses them for every sine and
+cosine, so a task that computes the same quantity with them gets the same bits.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-__all__ = ["FLAG_NONFINITE", "FLAG_SINGULAR", "SINCOS_MAX_ARG", "pcos", "psin", "psincos", "solve_small"]
+__all__ = ["FLAG_NONFINITE", "FLAG_SINGULAR", "SINCOS_MAX_ARG", "pcos", "psin", "psincos", "solve_diagonal", "solve_small"]
 
 # Bits of the per-row status flag returned by the generated kernels.
 FLAG_SINGULAR = 1  #: C was singular or ill-conditioned at some evaluation (the law's u was set to 0).
@@ -16,15 +21,20 @@ FLAG_NONFINITE = 2  #: the state became non-finite.
 def solve_small(a: np.ndarray, b: np.ndarray, x: np.ndarray, tol: float) -> int:
     """Solve ``a x = b`` for a small square ``a`` by Gaussian elimination with partial pivoting.
 
-    ``a`` and ``b`` are overwritten.  Returns ``FLAG_SINGULAR`` (and ``x = 0``) when a pivot is
-    not larger than ``tol * max(1, max|a|)`` or is NaN, else 0.
+    ``a`` and ``b`` are overwritten.  Returns ``FLAG_SINGULAR`` (and ``x = 0``) when a pivot is not
+    larger than ``tol * max|a|`` (relative to the matrix's own scale, so multiplying ``a`` by any
+    nonzero number never changes the verdict), when ``a`` is zero, or when an entry is not finite;
+    else 0.
     """
     m = a.shape[0]
-    scale = 1.0
+    scale = 0.0
+    finite = True
     for i in range(m):
         for j in range(m):
             v = abs(a[i, j])
-            if v > scale:
+            if not v < np.inf:  # inf or NaN
+                finite = False
+            elif v > scale:
                 scale = v
     thresh = tol * scale
     for k in range(m):
@@ -35,7 +45,7 @@ def solve_small(a: np.ndarray, b: np.ndarray, x: np.ndarray, tol: float) -> int:
             if v > best:
                 best = v
                 piv = i
-        if not best > thresh:  # also true for NaN
+        if not (finite and best > thresh and best > 0.0):
             for i in range(m):
                 x[i] = 0.0
             return FLAG_SINGULAR
@@ -57,6 +67,31 @@ def solve_small(a: np.ndarray, b: np.ndarray, x: np.ndarray, tol: float) -> int:
         for j in range(i + 1, m):
             acc -= a[i, j] * x[j]
         x[i] = acc / a[i, i]
+    return 0
+
+
+@njit(cache=True)
+def solve_diagonal(c: np.ndarray, b: np.ndarray, x: np.ndarray, tol: float) -> int:
+    """``x = b / diag(c)`` for a ``c`` that is diagonal by construction; the same singular test as
+    :func:`solve_small` (a diagonal entry not larger than ``tol`` times the largest one, or zero,
+    or any entry not finite: ``FLAG_SINGULAR`` and ``x = 0``)."""
+    m = c.shape[0]
+    scale = 0.0
+    finite = True
+    for i in range(m):
+        v = abs(c[i, i])
+        if not v < np.inf:
+            finite = False
+        elif v > scale:
+            scale = v
+    for i in range(m):
+        v = abs(c[i, i])
+        if not (finite and v > tol * scale and v > 0.0):
+            for j in range(m):
+                x[j] = 0.0
+            return FLAG_SINGULAR
+    for i in range(m):
+        x[i] = b[i] / c[i, i]
     return 0
 
 

@@ -1,0 +1,69 @@
+"""The system that :mod:`vnhc_gym.mechanics._template` runs on when imported as a module of its own.
+
+A unit point mass on a line, pushed by one force, held to ``phi = qd`` (come to rest): ``n = m = 1``,
+``qdd = u / mass``, ``C = 1 / mass``, ``G = 0``, one extra output (the position).  Code
+generation replaces the import of this module with the same names written out for a real
+system (:func:`vnhc_gym.mechanics.codegen.generate_source`), so these functions document the
+signatures that the generated ones have.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+NAME = "placeholder"
+N = 1  #: configuration coordinates
+M = 1  #: controls (= constraint components)
+NP = 1  #: parameters
+NG = 1  #: gains (M, or 2 M for a holonomic constraint)
+NAUX = 1  #: extra outputs
+HOLONOMIC = False
+DIAGONAL_C = True  #: C is diagonal by construction (checked symbolically by code generation)
+PARAM_NAMES = ("mass",)
+PARAM_DEFAULTS = (1.0,)
+OUTPUT_NAMES = ("position",)
+
+
+@njit(cache=True, error_model="numpy")
+def _accel(s: np.ndarray, p: np.ndarray, u: np.ndarray, ds: np.ndarray) -> None:
+    """``ds[N:] = a0(s) + Y(s) u`` (the acceleration half of ``ds/dt``)."""
+    ds[1] = u[0] / p[0]
+
+
+@njit(cache=True, error_model="numpy")
+def _phi(s: np.ndarray, p: np.ndarray, out: np.ndarray) -> None:
+    """``out = phi(s)`` (``psi = d phi_h/dt`` for a holonomic constraint)."""
+    out[0] = s[1]
+
+
+@njit(cache=True, error_model="numpy")
+def _phi_h(s: np.ndarray, p: np.ndarray, out: np.ndarray) -> None:
+    """``out = phi_h(q)`` (holonomic constraints only)."""
+    out[0] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def _aux(s: np.ndarray, p: np.ndarray, out: np.ndarray) -> None:
+    """The extra outputs."""
+    out[0] = s[0]
+
+
+@njit(cache=True, error_model="numpy")
+def _cg(s: np.ndarray, p: np.ndarray, C: np.ndarray, G: np.ndarray) -> None:
+    """``C[b, a] = d phi^b/d qd . Y^a`` and ``G = d phi/dq . qd + d phi/d qd . a0``."""
+    C[0, 0] = 1.0 / p[0]
+    G[0] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def _dyn(s: np.ndarray, p: np.ndarray, a0: np.ndarray, Y: np.ndarray) -> None:
+    """Drift ``a0`` and input fields ``Y`` (columns)."""
+    a0[0] = 0.0
+    Y[0, 0] = 1.0 / p[0]
+
+
+@njit(cache=True, error_model="numpy")
+def _energy(s: np.ndarray, p: np.ndarray) -> float:
+    """Mechanical energy."""
+    return 0.5 * p[0] * s[1] * s[1]

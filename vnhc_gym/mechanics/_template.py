@@ -1,0 +1,248 @@
+"""Batch kernels of a compiled system: the stabilising law, RK4 with or without it, phi and friends.
+
+This file is the template of every generated system module.  Code generation copies its text and
+replaces the import between the ``system`` markers below with one system's expression functions
+and constants (:func:`vnhc_gym.mechanics.codegen.generate_source`); everything else is the same
+for every system.  Imported as it is, it runs on the placeholder system of
+:mod:`vnhc_gym.mechanics._placeholder` (a point mass on a line), which the tests use.
+
+States are rows ``s = (q, qd)`` of length ``2 N``; parameters rows of length ``NP``; controls rows
+of length ``M``.  Every batched kernel takes ``(B, ...)`` arrays and loops over rows; the per-row
+functions (``rk4_row``, ``law_row`` and the expression functions) are what the environments'
+step kernels call.
+"""
+
+import math  # noqa: F401  (the generated expression functions use it)
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from vnhc_gym.mechanics.kernels import (  # noqa: F401  (pcos/psin: used by generated code)
+    FLAG_NONFINITE,
+    FLAG_SINGULAR,
+    pcos,
+    psin,
+    solve_diagonal,
+    solve_small,
+)
+
+# --- system: begin (code generation writes one system's functions and constants here)
+from vnhc_gym.mechanics._placeholder import (  # noqa: F401
+    DIAGONAL_C,
+    HOLONOMIC,
+    M,
+    N,
+    NAME,
+    NAUX,
+    NG,
+    NP,
+    OUTPUT_NAMES,
+    PARAM_DEFAULTS,
+    PARAM_NAMES,
+    _accel,
+    _aux,
+    _cg,
+    _dyn,
+    _energy,
+    _phi,
+    _phi_h,
+)
+
+# --- system: end
+
+#: Feedback modes of :func:`rk4_row`: the held control only; ``u*`` re-evaluated at every RK4 stage
+#: (the theorem's setting); ``u*`` evaluated once at the start of the control period and held.
+OPEN, CONTINUOUS, SAMPLED = 0, 1, 2
+
+
+class Work(NamedTuple):
+    """Scratch vectors of one row's RK4 step and law (views of one allocation, see :func:`work`)."""
+
+    x: np.ndarray  # the state being integrated (2N)
+    tmp: np.ndarray  # an RK4 stage's state (2N)
+    k1: np.ndarray  # stage derivatives (2N each)
+    k2: np.ndarray
+    k3: np.ndarray
+    k4: np.ndarray
+    u: np.ndarray  # the control of the current stage (M)
+    base: np.ndarray  # the held part of the control (M)
+    law: np.ndarray  # u* at a stage (M)
+    acc: np.ndarray  # sum of the applied controls over substeps (M)
+    G: np.ndarray  # G(phi), then the law's right-hand side (M)
+    ph: np.ndarray  # phi (M)
+    hol: np.ndarray  # phi_h (M)
+    C: np.ndarray  # decoupling matrix (M x M)
+
+
+@njit(cache=True)
+def work() -> Work:
+    """Scratch space for :func:`rk4_row` and :func:`law_row`: one allocation, reused row after row."""
+    n2 = 2 * N
+    flat = np.empty(6 * n2 + 7 * M + M * M)
+    o = 6 * n2
+    return Work(flat[0:n2], flat[n2:2 * n2], flat[2 * n2:3 * n2], flat[3 * n2:4 * n2], flat[4 * n2:5 * n2],
+                flat[5 * n2:6 * n2], flat[o:o + M], flat[o + M:o + 2 * M], flat[o + 2 * M:o + 3 * M],
+                flat[o + 3 * M:o + 4 * M], flat[o + 4 * M:o + 5 * M], flat[o + 5 * M:o + 6 * M],
+                flat[o + 6 * M:o + 7 * M], flat[o + 7 * M:o + 7 * M + M * M].reshape((M, M)))
+
+
+@njit(cache=True, error_model="numpy")
+def law_row(s, p, k, tol, w, u):
+    """``u = C^-1 (-K phi - G)`` at state ``s`` (``-K1 phi_h - K2 psi - G`` if holonomic).
+
+    Returns ``FLAG_SINGULAR`` (and ``u = 0``) where ``C`` is singular (see ``solve_small``), else 0.
+    """
+    _cg(s, p, w.C, w.G)
+    _phi(s, p, w.ph)
+    if HOLONOMIC:
+        _phi_h(s, p, w.hol)
+        for b in range(M):
+            w.G[b] = -k[b] * w.hol[b] - k[M + b] * w.ph[b] - w.G[b]
+    else:
+        for b in range(M):
+            w.G[b] = -k[b] * w.ph[b] - w.G[b]
+    if DIAGONAL_C:
+        return solve_diagonal(w.C, w.G, u, tol)
+    return solve_small(w.C, w.G, u, tol)
+
+
+@njit(cache=True, error_model="numpy")
+def _derivative(s, p, u, ds):
+    """``ds = (qd, a0 + Y u)`` at state ``s``."""
+    for i in range(N):
+        ds[i] = s[N + i]
+    _accel(s, p, u, ds)
+
+
+@njit(cache=True, error_model="numpy")
+def _control(s, pl, k, mode, lo, hi, tol, w):
+    """The control of one RK4 stage at state ``s`` into ``w.u``: ``clip(base)``, plus ``u*(s)`` in
+    the continuous mode.  Returns the law's flag."""
+    flag = 0
+    if mode == CONTINUOUS:
+        flag = law_row(s, pl, k, tol, w, w.law)
+        for a in range(M):
+            w.u[a] = min(max(w.law[a] + w.base[a], lo[a]), hi[a])
+    else:
+        for a in range(M):
+            w.u[a] = min(max(w.base[a], lo[a]), hi[a])
+    return flag
+
+
+@njit(cache=True, error_model="numpy")
+def rk4_row(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, w):
+    """One control period ``dt`` of ``substeps`` RK4 steps from state ``s``, into ``out``.
+
+    ``p`` drives the dynamics; ``pl`` (the model a controller is told) is what the law uses.  The
+    control at each stage is ``clip(uh)`` (``OPEN``), ``clip(u*(stage) + uh)`` (``CONTINUOUS``) or
+    ``clip(u*(start) + uh)`` held over the period (``SAMPLED``), with bounds ``lo``, ``hi``.
+    ``u_out`` gets the applied control averaged over the substeps' first stages.  Returns the
+    row's flags: ``FLAG_SINGULAR`` if the law met a singular ``C`` (it is 0 there), and
+    ``FLAG_NONFINITE`` if the new state is not finite.
+    """
+    n2 = 2 * N
+    x = w.x
+    tmp = w.tmp
+    for i in range(n2):
+        x[i] = s[i]
+    flag = 0
+    for a in range(M):
+        w.acc[a] = 0.0
+        w.base[a] = uh[a]
+    if mode == SAMPLED:
+        flag |= law_row(x, pl, k, tol, w, w.law)
+        for a in range(M):
+            w.base[a] = uh[a] + w.law[a]
+    h = dt / substeps
+    for _ in range(substeps):
+        flag |= _control(x, pl, k, mode, lo, hi, tol, w)
+        for a in range(M):
+            w.acc[a] += w.u[a]
+        _derivative(x, p, w.u, w.k1)
+        for i in range(n2):
+            tmp[i] = x[i] + 0.5 * h * w.k1[i]
+        flag |= _control(tmp, pl, k, mode, lo, hi, tol, w)
+        _derivative(tmp, p, w.u, w.k2)
+        for i in range(n2):
+            tmp[i] = x[i] + 0.5 * h * w.k2[i]
+        flag |= _control(tmp, pl, k, mode, lo, hi, tol, w)
+        _derivative(tmp, p, w.u, w.k3)
+        for i in range(n2):
+            tmp[i] = x[i] + h * w.k3[i]
+        flag |= _control(tmp, pl, k, mode, lo, hi, tol, w)
+        _derivative(tmp, p, w.u, w.k4)
+        for i in range(n2):
+            x[i] = x[i] + (h / 6.0) * (w.k1[i] + 2.0 * w.k2[i] + 2.0 * w.k3[i] + w.k4[i])
+    finite = True
+    for i in range(n2):
+        out[i] = x[i]
+        if not math.isfinite(x[i]):
+            finite = False
+    for a in range(M):
+        u_out[a] = w.acc[a] / substeps
+    if not finite:
+        flag |= FLAG_NONFINITE
+    return flag
+
+
+# ---------------------------------------------------------------------- batched kernels (rows of B)
+
+
+@njit(cache=True)
+def rk4(S, P, PL, U, K, mode, lo, hi, dt, substeps, tol, out, u_out, flags):
+    """:func:`rk4_row` for every row: ``S`` (B, 2N), ``P``/``PL`` (B, NP), ``U`` (B, M), ``K`` (B, NG)."""
+    w = work()
+    for r in range(S.shape[0]):
+        flags[r] = rk4_row(S[r], P[r], PL[r], U[r], K[r], mode, lo, hi, dt, substeps, tol, out[r], u_out[r], w)
+
+
+@njit(cache=True)
+def law(S, P, K, tol, U, flags):
+    """``u*`` for every row (``K = 0``: the invariance control); ``flags[r] = FLAG_SINGULAR`` where
+    ``C`` is singular."""
+    w = work()
+    for r in range(S.shape[0]):
+        flags[r] = law_row(S[r], P[r], K[r], tol, w, U[r])
+
+
+@njit(cache=True)
+def phi(S, P, out):
+    """``phi`` of every row."""
+    for r in range(S.shape[0]):
+        _phi(S[r], P[r], out[r])
+
+
+@njit(cache=True)
+def phi_h(S, P, out):
+    """``phi_h`` of every row (holonomic constraints)."""
+    for r in range(S.shape[0]):
+        _phi_h(S[r], P[r], out[r])
+
+
+@njit(cache=True)
+def aux(S, P, out):
+    """The extra outputs of every row."""
+    for r in range(S.shape[0]):
+        _aux(S[r], P[r], out[r])
+
+
+@njit(cache=True)
+def cg(S, P, C, G):
+    """``C`` and ``G(phi)`` of every row."""
+    for r in range(S.shape[0]):
+        _cg(S[r], P[r], C[r], G[r])
+
+
+@njit(cache=True)
+def dyn(S, P, A0, Y):
+    """Drift ``a0`` and input fields ``Y`` of every row."""
+    for r in range(S.shape[0]):
+        _dyn(S[r], P[r], A0[r], Y[r])
+
+
+@njit(cache=True)
+def energy(S, P, out):
+    """Mechanical energy of every row."""
+    for r in range(S.shape[0]):
+        out[r] = _energy(S[r], P[r])

@@ -1,0 +1,361 @@
+"""``vnhc_gym/USVStream``: hold a boat in a sea current to an affine velocity constraint."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from vnhc_gym.envs.config import check_number
+from vnhc_gym.envs.env import ConstraintEnv
+from vnhc_gym.envs.episode import STATUS_NONFINITE, STATUS_OK, TASK_STATUS, Buffers, StepConfig
+from vnhc_gym.envs.vector import ConstraintVectorEnv
+from vnhc_gym.kernels import draw_mismatch, normal_pair, psincos, sign, uniform_ab
+from vnhc_gym.mechanics import FLAG_NONFINITE, ConstrainedSystem
+from vnhc_gym.systems.currents import CURRENTS, RANDOM_PARAM_NAMES, RANDOM_WEIGHTS, get_current
+from vnhc_gym.systems.usv import USV_PRESETS, make_usv
+from vnhc_gym.tasks.base import Task
+
+Array = NDArray[np.float64]
+__all__ = ["USVStreamEnv", "USVStreamVectorEnv", "USVTask", "USV_OBS_DIM", "VEL_SCALE", "RATE_SCALE"]
+
+USV_OBS_DIM = 14
+VEL_SCALE = 2.0  #: m/s: velocities and currents are divided by this in the observation
+RATE_SCALE = 2.0  #: rad/s: the turn rate is divided by this
+STATUS_OUT = TASK_STATUS  #: the boat left the charted square
+STATUS_SPIN = TASK_STATUS + 1  #: the turn rate exceeded its physical limit
+
+
+class Args(NamedTuple):
+    """The USV hooks' constants."""
+
+    nominal: np.ndarray  #: nominal parameters (m, I, current_scale, c_...)
+    amp_idx: np.ndarray  #: indices of the random current's amplitudes (empty for a fixed field)
+    amp_w: np.ndarray  #: their standard deviations
+    mismatch_mask: np.ndarray  #: parameters that the mismatch scenario perturbs (m, I, current_scale)
+    mismatch: float  #: relative half-width of the mismatch
+    preset_state: np.ndarray  #: the preset's start state (unused without a preset)
+    use_preset: bool
+    domain: float  #: half-width of the charted square (m)
+    max_rate: float  #: largest physical turn rate (rad/s)
+    vel_scale: float  #: the scale of the scale-free phi (m/s)
+
+
+DRAW_STAGES = 2  #: the start velocity (stage 1) depends on the true current at the start pose (stage 0)
+
+
+@njit(cache=True)
+def draw(r: int, stage: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
+    """A new episode: stage 0 draws the parameters (random current amplitudes, mismatch) and the pose;
+    stage 1 the velocity, from the true current ``buf.aux[r]`` at that pose."""
+    rng = buf.rng
+    S = buf.state[r]
+    if stage == 0:
+        PN = buf.params_nominal[r]
+        for j in range(args.nominal.shape[0]):
+            PN[j] = args.nominal[j]
+        for k in range(0, args.amp_idx.shape[0], 2):
+            z0, z1 = normal_pair(rng, r)
+            PN[args.amp_idx[k]] = args.amp_w[k] * z0
+            if k + 1 < args.amp_idx.shape[0]:
+                PN[args.amp_idx[k + 1]] = args.amp_w[k + 1] * z1
+        draw_mismatch(rng, r, PN, args.mismatch_mask, args.mismatch, buf.params_true[r])
+        if args.use_preset:
+            for j in range(6):
+                S[j] = args.preset_state[j]
+        else:
+            S[0] = uniform_ab(rng, r, -5.0, 5.0)
+            S[1] = uniform_ab(rng, r, -5.0, 5.0)
+            S[2] = uniform_ab(rng, r, -math.pi, math.pi)
+            S[3] = 0.0
+            S[4] = 0.0
+            S[5] = 0.0
+    elif not args.use_preset:
+        s, c = psincos(S[2])
+        c1 = buf.aux[r, 0]
+        c2 = buf.aux[r, 1]
+        # Forward through the water, and at least 0.3 m/s forward over ground along the heading:
+        # on the manifold I thetadd = -m thetad v_forward, unstable when the boat goes backwards.
+        forward = max(uniform_ab(rng, r, 0.5, 1.5), 0.3 - (c1 * c + c2 * s))
+        phi0 = uniform_ab(rng, r, 0.2, 1.0) * sign(rng, r)  # off the manifold by construction
+        # Velocity = current + forward speed along the heading + phi0 across it (mu = (sin, -cos)).
+        S[3] = c1 + forward * c + phi0 * s
+        S[4] = c2 + forward * s - phi0 * c
+        S[5] = uniform_ab(rng, r, -0.5, 0.5)
+
+
+@njit(cache=True)
+def observe(r: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
+    """The observation (the nominal current map at the boat from ``buf.aux``), the status
+    (non-finite, out of the square, spinning) and the scale-free ``phi / vel_scale``."""
+    S = buf.state[r]
+    aux = buf.aux[r]
+    out = buf.obs[r]
+    if buf.flags[r] & FLAG_NONFINITE:
+        buf.status[r] = STATUS_NONFINITE
+    elif abs(S[0]) > args.domain or abs(S[1]) > args.domain:
+        buf.status[r] = STATUS_OUT
+    elif abs(S[5]) > args.max_rate:
+        buf.status[r] = STATUS_SPIN
+    else:
+        buf.status[r] = STATUS_OK
+    s, c = psincos(S[2])
+    xd = S[3]
+    yd = S[4]
+    c1 = aux[0]
+    c2 = aux[1]
+    out[0] = c
+    out[1] = s
+    out[2] = xd / VEL_SCALE
+    out[3] = yd / VEL_SCALE
+    out[4] = S[5] / RATE_SCALE
+    out[5] = c1 / VEL_SCALE
+    out[6] = c2 / VEL_SCALE
+    out[7] = S[0] / args.domain
+    out[8] = S[1] / args.domain
+    out[9] = (s * xd - c * yd + c * c2 - s * c1) / VEL_SCALE  # phi with the nominal current
+    for j in range(4):
+        out[10 + j] = aux[2 + j]  # nominal dC1/dx, dC1/dy, dC2/dx, dC2/dy (1/s)
+    clip = cfg.obs_clip
+    for j in range(out.shape[0]):
+        out[j] = min(max(out[j], -clip), clip)
+    buf.phi_sf[r, 0] = buf.phi[r, 0] / args.vel_scale
+
+
+class USVTask(Task):
+    """A USV in a current held to ``phi = mu(qd - C) = 0`` (see :class:`USVStreamEnv`)."""
+
+    name = "usv"
+    options = {"preset": None, "current": "random", "current_params": None, "mass": 10.0, "inertia": 1.5,
+               "domain": 100.0, "max_turn_rate": 10.0}
+    reasons = ("out_of_domain", "turn_rate_exceeded")
+    #: The geometric law with the baseline's gain k = 5 needs at most ~57 N at the start of a nominal
+    #: episode (500 seeds), so it never saturates at 100 N.
+    default_force_bound = 100.0
+    default_impulse_scale = 0.3
+    reward_sigma = 0.1
+    phi_units = "m/s"
+    phi_sf_meaning = "phi / (1 m/s): the sideways speed through the water"
+    #: The scale of the scale-free phi (m/s).
+    velocity_scale = 1.0
+
+    def __init__(self, config: Any, *, preset: str | None = None, current: str = "random",
+                 current_params: dict[str, float] | None = None, mass: float = 10.0, inertia: float = 1.5,
+                 domain: float = 100.0, max_turn_rate: float = 10.0) -> None:
+        self.config = config
+        if preset is not None:
+            if not isinstance(preset, str) or preset not in USV_PRESETS:
+                raise ValueError(f"preset must be one of {sorted(USV_PRESETS)} or None, got {preset!r}")
+            pr = USV_PRESETS[preset]
+            current, mass, inertia, current_params = pr.current, pr.m, pr.inertia, None
+        if not isinstance(current, str) or current not in CURRENTS:
+            raise ValueError(f"current must be one of {sorted(CURRENTS)}, got {current!r}")
+        field = get_current(current)
+        mass = check_number("mass", mass, low=0.0, low_open=True, high=1e12)
+        inertia = check_number("inertia", inertia, low=0.0, low_open=True, high=1e12)
+        domain = check_number("domain", domain, low=0.0, low_open=True, high=1e9)
+        max_turn_rate = check_number("max_turn_rate", max_turn_rate, low=0.0, low_open=True, high=1e6)
+        overrides: dict[str, float] = {}
+        if current_params is not None:
+            if not isinstance(current_params, dict):
+                raise TypeError(f"current_params must be a dict of parameter name to number or None, "
+                                f"got {current_params!r}")
+            unknown = sorted(set(current_params) - set(field.defaults))
+            if unknown:
+                raise ValueError(f"current_params has unknown names {unknown} for current {current!r}; "
+                                 f"valid: {sorted(field.defaults)}")
+            for k, v in current_params.items():
+                overrides[f"c_{k}"] = check_number(f"current_params[{k!r}]", v, low=-1e6, high=1e6)  # type: ignore
+        self.preset = preset
+        self.current = current
+        self.domain = float(domain)  # type: ignore[arg-type]
+        self.max_turn_rate = float(max_turn_rate)  # type: ignore[arg-type]
+        self.fixed_field = current != "random" or current_params is not None
+        self.model = make_usv(current)
+        names = self.model.param_names
+        self.nominal = self.model.params(m=mass, I=inertia, **overrides)  # type: ignore[arg-type]
+        self.obs_dim = USV_OBS_DIM
+        self.impulse_mask = np.array([1.0, 1.0, 0.0])  # kicks on xd, yd
+        amp_idx = [] if self.fixed_field else [names.index(f"c_{k}") for k in RANDOM_PARAM_NAMES]
+        self.args = Args(
+            nominal=self.nominal, amp_idx=np.array(amp_idx, dtype=np.intp),
+            amp_w=np.asarray([] if self.fixed_field else RANDOM_WEIGHTS, dtype=np.float64),
+            mismatch_mask=np.array([n in ("m", "I", "current_scale") for n in names]),
+            mismatch=config.param_mismatch,
+            preset_state=USV_PRESETS[preset].state() if preset is not None else np.zeros(6),
+            use_preset=preset is not None, domain=self.domain, max_rate=self.max_turn_rate,
+            vel_scale=self.velocity_scale)
+
+    # ------------------------------------------------------------------ what a controller reads
+    def controller_model(self) -> ConstrainedSystem:
+        """The USV with an affine current: the controller's local model of any current, from the
+        current and its gradient that the observation gives at the boat."""
+        return make_usv("affine")
+
+    def controller_inputs(self, obs: Array) -> tuple[Array, Array]:
+        """States ``(x, y, theta, xd, yd, thetad)`` and affine-current parameters from observations.
+
+        The affine field ``C(p) = C0 + J (p - p0)`` matches the observed (nominal) current and its
+        gradient at the boat ``p0``, so ``phi`` of the model equals the observed ``phi`` there.
+        """
+        o = np.asarray(obs, dtype=np.float64)
+        model = self.controller_model()
+        x0, y0 = o[:, 7] * self.domain, o[:, 8] * self.domain
+        th = np.arctan2(o[:, 1], o[:, 0])
+        st = np.stack([x0, y0, th, VEL_SCALE * o[:, 2], VEL_SCALE * o[:, 3], RATE_SCALE * o[:, 4]], axis=1)
+        c1, c2 = VEL_SCALE * o[:, 5], VEL_SCALE * o[:, 6]
+        j11, j12, j21, j22 = o[:, 10], o[:, 11], o[:, 12], o[:, 13]
+        names = model.param_names
+        p = np.tile(model.default_params, (o.shape[0], 1))
+        p[:, names.index("m")] = self.nominal[self.model.param_names.index("m")]
+        p[:, names.index("I")] = self.nominal[self.model.param_names.index("I")]
+        p[:, names.index("current_scale")] = 1.0  # the observed current already includes the nominal scale
+        p[:, names.index("c_c1")] = c1 - (j11 * x0 + j12 * y0)
+        p[:, names.index("c_c2")] = c2 - (j21 * x0 + j22 * y0)
+        for name, col in (("c_j11", j11), ("c_j12", j12), ("c_j21", j21), ("c_j22", j22)):
+            p[:, names.index(name)] = col
+        return st, p
+
+    def current_params(self, params: Array) -> dict[str, float]:
+        """A parameter vector's current parameters, for :class:`~vnhc_gym.systems.currents.CurrentField`."""
+        names = self.model.param_names
+        return {k: float(params[names.index(f"c_{k}")]) for k in get_current(self.current).defaults}
+
+
+class USVStreamEnv(ConstraintEnv):
+    r"""A boat in a sea current held to an affine velocity constraint.
+
+    ## Description
+
+    A USV with configuration ``q = (x, y, theta)``, mass ``m`` and inertia ``I`` moves in a
+    current ``C(x, y)``. One control force ``u`` acts along ``sin(theta) dx - cos(theta) dy +
+    d theta``; the current pushes the boat with ``W = m dV/dt``. The task is the virtual affine
+    constraint
+
+    $$\phi = \sin\theta\,\dot x - \cos\theta\,\dot y + \cos\theta\,C^2 - \sin\theta\,C^1 = 0,$$
+
+    i.e. no sideways velocity relative to the water. The stabilising law (derived; the printed one
+    in the original paper is wrong, see the docs' errata) is
+    $u^* = -m\,[k\phi + \dot\theta(\dot x\cos\theta + \dot y\sin\theta)]$.
+
+    ## Action Space
+
+    ``Box(-1, 1, (1,), float32)``: ``u = force_bound * clip(a, -1, 1)`` (N), held over ``dt``.
+
+    ## Observation Space
+
+    ``Box(-obs_clip, obs_clip, (14,), float32)``; ``C`` is the **nominal** current map at the
+    boat (what a chart gives; it differs from the true current under ``mismatch``):
+
+    | index | observation                      | index | observation                    |
+    |-------|----------------------------------|-------|--------------------------------|
+    | 0     | ``cos(theta)``                   | 7     | ``x / domain``                 |
+    | 1     | ``sin(theta)``                   | 8     | ``y / domain``                 |
+    | 2     | ``xd / 2`` (m/s)                 | 9     | ``phi / 2`` (with nominal C)   |
+    | 3     | ``yd / 2``                       | 10    | ``dC1/dx`` (1/s)               |
+    | 4     | ``thetad / 2`` (rad/s)           | 11    | ``dC1/dy``                     |
+    | 5     | ``C1 / 2``                       | 12    | ``dC2/dx``                     |
+    | 6     | ``C2 / 2``                       | 13    | ``dC2/dy``                     |
+
+    The current's gradient gives a controller a local (affine) model of the current.
+
+    ## Rewards
+
+    ``r = exp(-|phi| / (1 m/s) / reward_sigma) - action_cost * a^2`` in ``[0, 1]`` (``-v1``, the
+    default), with the true ``phi`` at the new state; ``-v0``: ``clip(-|phi| / phi_scale -
+    action_cost * a^2, -reward_clip, 0)``. ``info["abs_phi"]`` is ``|phi|`` (m/s).
+
+    ## Starting State
+
+    Position ``U(-5, 5)^2`` m, heading ``U(-pi, pi)``, velocity = current + ``U(0.5, 1.5)`` m/s
+    along the heading (raised if needed so that the ground speed along the heading is at least
+    0.3 m/s) + ``±U(0.2, 1)`` m/s across it (so ``|phi(0)| >= 0.2``), turn rate
+    ``U(-0.5, 0.5)`` rad/s. With ``current="random"`` a new field is drawn every episode.
+    ``preset="paper-northeast"`` / ``"paper-anticyclone"`` reset to the paper's exact state.
+
+    ## Episode End
+
+    * Truncation: the time limit (``max_episode_steps=400`` with ``gym.make``, 20 s).
+    * Termination: non-finite state (``"non_finite_state"``), the boat leaving the charted
+      square ``|x|, |y| <= domain`` (``"out_of_domain"``) or spinning faster than
+      ``max_turn_rate`` (``"turn_rate_exceeded"``), in ``info["termination_reason"]``. On the
+      manifold ``I thetadd = -m thetad v``, with ``v`` the ground speed along the heading, which
+      is unstable when the boat is pushed backwards (e.g. by a head current).
+
+    ## Arguments
+
+    | argument          | default   | meaning                                                     |
+    |-------------------|-----------|-------------------------------------------------------------|
+    | ``scenario``      | "nominal" | see Scenarios                                               |
+    | ``preset``        | None      | ``"paper-northeast"``, ``"paper-anticyclone"``              |
+    | ``current``       | "random"  | a name of ``vnhc_gym.systems.CURRENTS``                     |
+    | ``current_params``| None      | overrides of the current's parameters (fixes a random field)|
+    | ``mass``          | 10.0      | ``m`` (kg)                                                  |
+    | ``inertia``       | 1.5       | ``I`` (kg m^2)                                              |
+    | ``domain``        | 100.0     | half-width of the charted square (m)                        |
+    | ``max_turn_rate`` | 10.0      | largest physical turn rate (rad/s)                          |
+    | ``dt``            | 0.05      | control period (s)                                          |
+    | ``substeps``      | 1         | RK4 steps per control period                                |
+    | ``force_bound``   | 100.0     | largest force (N)                                           |
+    | ``reward``        | "bounded" | ``"bounded"`` (``-v1``) or ``"raw"`` (``-v0``)               |
+    | ``reward_sigma``  | 0.1       | width of the bounded reward                                 |
+    | ``phi_scale``, ``reward_clip`` | 1, 100 | the raw reward's scale and clip                   |
+    | ``action_cost``   | 0.0       | reward weight of ``a^2``                                    |
+    | ``param_mismatch``| 0.0       | true ``m``, ``I``, current scale ``x (1 + U(-d, d))``       |
+    | ``obs_noise``     | 0.0       | std of Gaussian observation noise                           |
+    | ``impulse_prob``  | 0.0       | per-step probability of a random velocity kick             |
+    | ``impulse_scale`` | 0.3       | std (m/s) of a kick on ``xd`` and ``yd``                    |
+    | ``obs_clip``      | 10.0      | observation bound                                           |
+    | ``render_mode``   | None      | ``"rgb_array"`` or ``"human"``                              |
+
+    ## Scenarios
+
+    | scenario      | what changes                                                               |
+    |---------------|----------------------------------------------------------------------------|
+    | nominal       | nothing                                                                    |
+    | saturated     | ``force_bound_scale=0.05``: 5 N, the law usually saturates at the start    |
+    | mismatch      | ``param_mismatch=0.3``: true ``m``, ``I`` and current strength differ      |
+    | noisy         | ``obs_noise=0.02``                                                         |
+    | coarse        | ``dt=0.1, substeps=4``                                                     |
+    | disturbance   | ``impulse_prob=0.05``: random 0.3 m/s velocity kicks                       |
+
+    ## Info
+
+    ``phi`` (float64 ``(1,)``), ``abs_phi``, ``abs_phi_sf`` (``|phi| / (1 m/s)``), ``state``
+    (``x, y, theta, xd, yd, thetad``), ``force`` (N), ``time``; plus ``termination_reason`` when
+    terminated. The info of ``reset`` also holds ``params`` (the episode's true ``m, I,
+    current_scale, c_*``).
+
+    ## Version History
+
+    * v1: bounded reward ``exp(-|phi| / sigma)`` in ``[0, 1]``.
+    * v0: the raw reward ``-|phi|``.
+    """
+
+    task_class = USVTask
+    task: USVTask
+
+    def _draw(self, row: int) -> NDArray[np.uint8] | None:
+        from vnhc_gym.envs.rendering import USVRenderer
+
+        if self._renderer is None:
+            self._renderer = USVRenderer(self.render_mode, self.metadata["render_fps"])
+        task = self.task
+        buf = self.batch.buf
+        params = task.current_params(buf.params_true[row])
+        scale = float(buf.params_true[row, task.model.param_names.index("current_scale")])
+        field = get_current(task.current)
+
+        def current(x: Array, y: Array) -> Array:
+            return scale * field.value(x, y, params)
+
+        return self._renderer.draw(buf.state[row], buf.phi[row], current)
+
+
+class USVStreamVectorEnv(ConstraintVectorEnv):
+    """The native vector version of :class:`USVStreamEnv`: ``num_envs`` boats in one batch."""
+
+    env_class = USVStreamEnv
