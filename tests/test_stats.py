@@ -236,8 +236,8 @@ def test_profile_band_equals_per_replicate_recomputation() -> None:
 
 
 def test_probability_of_improvement_interval_equals_per_replicate_recomputation() -> None:
-    # Replays the documented draw order (x's runs, then y's, from one generator) to recompute
-    # every replicate from the resampled arrays.
+    # Replays the module's draw order (x's runs, then y's, from one generator seeded with seed)
+    # to recompute every replicate from the resampled arrays.
     reps, seed = 300, 11
     rng = np.random.default_rng(seed)
     n_tasks = X.shape[1]
@@ -363,6 +363,7 @@ BAD_CALLS: list[tuple[str, Callable[[], Any], str]] = [
     ("parity empty", lambda: steps_to_parity([], [], 1.0), "steps must not be empty"),
     ("parity target", lambda: steps_to_parity([0, 1], [1.0, 2.0], np.nan), "target must be a finite number"),
     ("parity times", lambda: time_to_parity([1.0, 0.0], [1.0, 2.0], 1.0), "times must be non-decreasing"),
+    ("parity unsigned", lambda: steps_to_parity(np.array([0, 2, 1], np.uint64), [3.0, 2.0, 1.0], 1.0), "steps must"),
     ("parity text", lambda: time_to_parity(["a"], [1.0], 1.0), "times must be a 1-D array of real numbers"),
 ]
 

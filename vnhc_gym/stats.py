@@ -231,10 +231,11 @@ def aggregate_metrics(scores: ArrayLike) -> dict[str, float]:
 def probability_of_improvement(x: ArrayLike, y: ArrayLike, lower_is_better: bool) -> float:
     """Probability that a run of algorithm X improves on a run of Y, averaged over tasks.
 
-    Per task this is the Mann-Whitney statistic over all pairs of runs,
-    ``mean(1[x > y] + 0.5 * 1[x == y])``, and the result is the mean over tasks, as rliable's
-    ``metrics.probability_of_improvement``.  With ``lower_is_better=True`` an improvement is a
-    smaller score (``x < y``), which gives exactly ``1 - probability_of_improvement(x, y, False)``.
+    Per task this is the Mann-Whitney U statistic divided by ``n_runs_x * n_runs_y``, i.e. the
+    mean over all pairs of runs of ``1[x > y] + 0.5 * 1[x == y]``, and the result is the mean
+    over tasks, as rliable's ``metrics.probability_of_improvement``.  With
+    ``lower_is_better=True`` an improvement is a smaller score (``x < y``), so the result is
+    ``1 - probability_of_improvement(x, y, False)``.
 
     Parameters
     ----------
@@ -243,7 +244,7 @@ def probability_of_improvement(x: ArrayLike, y: ArrayLike, lower_is_better: bool
     y : array_like, shape (n_runs_y, n_tasks)
         Scores of algorithm Y on the same tasks, in the same column order.
     lower_is_better : bool
-        Direction of improvement.
+        True when smaller scores are better (e.g. mean ``|phi|``).
 
     Returns
     -------
@@ -370,8 +371,8 @@ def interval_estimates(score_dict: Mapping[str, ArrayLike],
     """Point estimate and stratified-bootstrap percentile interval of an aggregate metric.
 
     Equivalent to rliable's ``library.get_interval_estimates(..., method="percentile",
-    task_bootstrap=False)``, but vectorised: 2000 replicates of a 20 x 12 score array take a few
-    milliseconds instead of seconds.
+    task_bootstrap=False)``, but vectorised over replicates: 2000 replicates of the IQM of a
+    20 x 12 score array take about 10 ms.
 
     Parameters
     ----------
@@ -537,7 +538,7 @@ def _first_reach(x_name: str, x: Any, values: Any, target: Any, lower_is_better:
     if xs.ndim != 1 or vals.ndim != 1 or xs.shape != vals.shape:
         raise ValueError(f"{x_name} and values must be 1-D arrays of the same length, "
                          f"got shapes {xs.shape} and {vals.shape}")
-    if np.any(np.diff(xs) < 0):
+    if np.any(xs[1:] < xs[:-1]):  # not np.diff, which wraps around for unsigned steps
         raise ValueError(f"{x_name} must be non-decreasing")
     if isinstance(target, bool) or not isinstance(target, int | float | np.integer | np.floating) \
             or not math.isfinite(target):
