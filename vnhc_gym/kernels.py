@@ -28,8 +28,8 @@ from numpy.typing import NDArray
 
 from vnhc_gym.mechanics.kernels import pcos, psin, psincos
 
-__all__ = ["draw_mismatch", "entropy_states", "next_u64", "normal_pair", "pcos", "psin", "psincos", "seed_states", "sign", "uniform",
-           "uniform_ab"]
+__all__ = ["draw_mismatch", "entropy_states", "next_u64", "normal_pair", "pcos", "psin", "psincos", "seed_states",
+           "sign", "uniform", "uniform_ab"]
 
 _GAMMA = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)

@@ -15,11 +15,13 @@ from numba import njit
 from vnhc_gym.envs.episode import finish_row, kick_row, start_row
 from vnhc_gym.mechanics.kernels import FLAG_NONFINITE
 
+# isort: split
 # --- bindings: begin
 from vnhc_gym.envs._placeholder import DRAW_STAGES, draw, observe
 from vnhc_gym.mechanics._template import N, _aux, _phi, rk4_row, work
 
 # --- bindings: end
+# isort: split
 
 
 @njit(cache=True)

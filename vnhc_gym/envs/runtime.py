@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from vnhc_gym import kernels as _random_kernels
 from vnhc_gym.envs import episode
-from vnhc_gym.envs.episode import STATUS_NONFINITE, Buffers, StepConfig, accept_actions
+from vnhc_gym.envs.episode import STATUS_NONFINITE, Buffers, accept_actions
 from vnhc_gym.kernels import entropy_states, seed_states
 from vnhc_gym.mechanics import kernels as _mechanics_kernels
 from vnhc_gym.mechanics.cache import load_module

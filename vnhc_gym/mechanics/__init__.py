@@ -10,8 +10,8 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from vnhc_gym.mechanics.kernels import FLAG_NONFINITE, FLAG_SINGULAR
 from vnhc_gym.mechanics.integrate import Trajectory, simulate
+from vnhc_gym.mechanics.kernels import FLAG_NONFINITE, FLAG_SINGULAR
 from vnhc_gym.mechanics.model import FEEDBACK_MODES, ConstrainedSystem, Feedback, SingularControlError
 from vnhc_gym.mechanics.sampled import sampled_control
 

@@ -19,7 +19,7 @@ NP = 1  #: parameters
 NG = 1  #: gains (M, or 2 M for a holonomic constraint)
 NAUX = 1  #: extra outputs
 HOLONOMIC = False
-DIAGONAL_C = True  #: C is diagonal by construction (checked symbolically by code generation)
+BLOCK = 1  #: C is block-diagonal with blocks of this size (1: diagonal; M: full), stored by block rows
 PARAM_NAMES = ("mass",)
 PARAM_DEFAULTS = (1.0,)
 OUTPUT_NAMES = ("position",)
@@ -29,6 +29,25 @@ OUTPUT_NAMES = ("position",)
 def _accel(s: np.ndarray, p: np.ndarray, u: np.ndarray, ds: np.ndarray) -> None:
     """``ds[N:] = a0(s) + Y(s) u`` (the acceleration half of ``ds/dt``)."""
     ds[1] = u[0] / p[0]
+
+
+@njit(cache=True, error_model="numpy")
+def _accel_at(s: np.ndarray, p: np.ndarray, u: np.ndarray, ds: np.ndarray, si: np.ndarray, pi: np.ndarray,
+              ui: np.ndarray) -> None:
+    """:func:`_accel` reading ``s[si]``, ``p[pi]``, ``u[ui]`` and writing ``ds[si[N:]]`` (the unit of a fleet)."""
+    ds[si[1]] = u[ui[0]] / p[pi[0]]
+
+
+@njit(cache=True, error_model="numpy")
+def _phi_at(s: np.ndarray, p: np.ndarray, out: np.ndarray, si: np.ndarray, pi: np.ndarray, oi: np.ndarray) -> None:
+    """:func:`_phi` reading ``s[si]``, ``p[pi]`` and writing ``out[oi]``."""
+    out[oi[0]] = s[si[1]]
+
+
+@njit(cache=True, error_model="numpy")
+def _aux_at(s: np.ndarray, p: np.ndarray, out: np.ndarray, si: np.ndarray, pi: np.ndarray, oi: np.ndarray) -> None:
+    """:func:`_aux` reading ``s[si]``, ``p[pi]`` and writing ``out[oi]``."""
+    out[oi[0]] = s[si[0]]
 
 
 @njit(cache=True, error_model="numpy")
@@ -51,7 +70,8 @@ def _aux(s: np.ndarray, p: np.ndarray, out: np.ndarray) -> None:
 
 @njit(cache=True, error_model="numpy")
 def _cg(s: np.ndarray, p: np.ndarray, C: np.ndarray, G: np.ndarray) -> None:
-    """``C[b, a] = d phi^b/d qd . Y^a`` and ``G = d phi/dq . qd + d phi/d qd . a0``."""
+    """``C[b, a] = d phi^b/d qd . Y^a`` (by block rows: ``C[b, a - BLOCK (b // BLOCK)]``) and
+    ``G = d phi/dq . qd + d phi/d qd . a0``."""
     C[0, 0] = 1.0 / p[0]
     G[0] = 0.0
 

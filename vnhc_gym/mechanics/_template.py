@@ -18,21 +18,13 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from vnhc_gym.mechanics.kernels import (  # noqa: F401  (pcos/psin: used by generated code)
-    FLAG_NONFINITE,
-    FLAG_SINGULAR,
-    pcos,
-    psin,
-    solve_diagonal,
-    solve_small,
-)
+from vnhc_gym.mechanics.kernels import FLAG_NONFINITE, pcos, psin, solve_blocks  # noqa: F401  (generated: psin..)
 
+# isort: split
 # --- system: begin (code generation writes one system's functions and constants here)
 from vnhc_gym.mechanics._placeholder import (  # noqa: F401
-    DIAGONAL_C,
+    BLOCK,
     HOLONOMIC,
-    M,
-    N,
     NAME,
     NAUX,
     NG,
@@ -40,20 +32,28 @@ from vnhc_gym.mechanics._placeholder import (  # noqa: F401
     OUTPUT_NAMES,
     PARAM_DEFAULTS,
     PARAM_NAMES,
+    M,
+    N,
     _accel,
+    _accel_at,
     _aux,
+    _aux_at,
     _cg,
     _dyn,
     _energy,
     _phi,
+    _phi_at,
     _phi_h,
 )
 
 # --- system: end
+# isort: split
 
 #: Feedback modes of :func:`rk4_row`: the held control only; ``u*`` re-evaluated at every RK4 stage
 #: (the theorem's setting); ``u*`` evaluated once at the start of the control period and held.
 OPEN, CONTINUOUS, SAMPLED = 0, 1, 2
+
+# --- rows: begin (a fleet brings its own row kernels, built on its unit's: see _fleet.py)
 
 
 class Work(NamedTuple):
@@ -72,26 +72,26 @@ class Work(NamedTuple):
     G: np.ndarray  # G(phi), then the law's right-hand side (M)
     ph: np.ndarray  # phi (M)
     hol: np.ndarray  # phi_h (M)
-    C: np.ndarray  # decoupling matrix (M x M)
+    C: np.ndarray  # decoupling matrix by block rows (M x BLOCK, see solve_blocks)
 
 
 @njit(cache=True)
 def work() -> Work:
     """Scratch space for :func:`rk4_row` and :func:`law_row`: one allocation, reused row after row."""
     n2 = 2 * N
-    flat = np.empty(6 * n2 + 7 * M + M * M)
+    flat = np.empty(6 * n2 + 7 * M + M * BLOCK)
     o = 6 * n2
     return Work(flat[0:n2], flat[n2:2 * n2], flat[2 * n2:3 * n2], flat[3 * n2:4 * n2], flat[4 * n2:5 * n2],
                 flat[5 * n2:6 * n2], flat[o:o + M], flat[o + M:o + 2 * M], flat[o + 2 * M:o + 3 * M],
                 flat[o + 3 * M:o + 4 * M], flat[o + 4 * M:o + 5 * M], flat[o + 5 * M:o + 6 * M],
-                flat[o + 6 * M:o + 7 * M], flat[o + 7 * M:o + 7 * M + M * M].reshape((M, M)))
+                flat[o + 6 * M:o + 7 * M], flat[o + 7 * M:o + 7 * M + M * BLOCK].reshape((M, BLOCK)))
 
 
 @njit(cache=True, error_model="numpy")
 def law_row(s, p, k, tol, w, u):
     """``u = C^-1 (-K phi - G)`` at state ``s`` (``-K1 phi_h - K2 psi - G`` if holonomic).
 
-    Returns ``FLAG_SINGULAR`` (and ``u = 0``) where ``C`` is singular (see ``solve_small``), else 0.
+    Returns ``FLAG_SINGULAR`` (and ``u = 0``) where ``C`` is singular (see ``solve_blocks``), else 0.
     """
     _cg(s, p, w.C, w.G)
     _phi(s, p, w.ph)
@@ -102,31 +102,16 @@ def law_row(s, p, k, tol, w, u):
     else:
         for b in range(M):
             w.G[b] = -k[b] * w.ph[b] - w.G[b]
-    if DIAGONAL_C:
-        return solve_diagonal(w.C, w.G, u, tol)
-    return solve_small(w.C, w.G, u, tol)
+    return solve_blocks(w.C, w.G, u, tol)
 
 
 @njit(cache=True, error_model="numpy")
-def _derivative(s, p, u, ds):
-    """``ds = (qd, a0 + Y u)`` at state ``s``."""
-    for i in range(N):
-        ds[i] = s[N + i]
-    _accel(s, p, u, ds)
-
-
-@njit(cache=True, error_model="numpy")
-def _control(s, pl, k, mode, lo, hi, tol, w):
-    """The control of one RK4 stage at state ``s`` into ``w.u``: ``clip(base)``, plus ``u*(s)`` in
-    the continuous mode.  Returns the law's flag."""
-    flag = 0
-    if mode == CONTINUOUS:
-        flag = law_row(s, pl, k, tol, w, w.law)
-        for a in range(M):
-            w.u[a] = min(max(w.law[a] + w.base[a], lo[a]), hi[a])
-    else:
-        for a in range(M):
-            w.u[a] = min(max(w.base[a], lo[a]), hi[a])
+def _feedback(s, pl, k, lo, hi, tol, w):
+    """The control of one RK4 stage of the continuous mode at state ``s``: ``clip(u*(s) + base)``
+    into ``w.u``.  Returns the law's flag."""
+    flag = law_row(s, pl, k, tol, w, w.law)
+    for a in range(M):
+        w.u[a] = min(max(w.law[a] + w.base[a], lo[a]), hi[a])
     return flag
 
 
@@ -144,6 +129,11 @@ def rk4_row(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, w):
     n2 = 2 * N
     x = w.x
     tmp = w.tmp
+    k1 = w.k1
+    k2 = w.k2
+    k3 = w.k3
+    k4 = w.k4
+    u = w.u
     for i in range(n2):
         x[i] = s[i]
     flag = 0
@@ -154,26 +144,41 @@ def rk4_row(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, w):
         flag |= law_row(x, pl, k, tol, w, w.law)
         for a in range(M):
             w.base[a] = uh[a] + w.law[a]
+    continuous = mode == CONTINUOUS
+    for a in range(M):  # the control of every stage, but in the continuous mode
+        u[a] = min(max(w.base[a], lo[a]), hi[a])
     h = dt / substeps
     for _ in range(substeps):
-        flag |= _control(x, pl, k, mode, lo, hi, tol, w)
+        if continuous:
+            flag |= _feedback(x, pl, k, lo, hi, tol, w)
         for a in range(M):
-            w.acc[a] += w.u[a]
-        _derivative(x, p, w.u, w.k1)
+            w.acc[a] += u[a]
+        for i in range(N):
+            k1[i] = x[N + i]
+        _accel(x, p, u, k1)
         for i in range(n2):
-            tmp[i] = x[i] + 0.5 * h * w.k1[i]
-        flag |= _control(tmp, pl, k, mode, lo, hi, tol, w)
-        _derivative(tmp, p, w.u, w.k2)
+            tmp[i] = x[i] + 0.5 * h * k1[i]
+        if continuous:
+            flag |= _feedback(tmp, pl, k, lo, hi, tol, w)
+        for i in range(N):
+            k2[i] = tmp[N + i]
+        _accel(tmp, p, u, k2)
         for i in range(n2):
-            tmp[i] = x[i] + 0.5 * h * w.k2[i]
-        flag |= _control(tmp, pl, k, mode, lo, hi, tol, w)
-        _derivative(tmp, p, w.u, w.k3)
+            tmp[i] = x[i] + 0.5 * h * k2[i]
+        if continuous:
+            flag |= _feedback(tmp, pl, k, lo, hi, tol, w)
+        for i in range(N):
+            k3[i] = tmp[N + i]
+        _accel(tmp, p, u, k3)
         for i in range(n2):
-            tmp[i] = x[i] + h * w.k3[i]
-        flag |= _control(tmp, pl, k, mode, lo, hi, tol, w)
-        _derivative(tmp, p, w.u, w.k4)
+            tmp[i] = x[i] + h * k3[i]
+        if continuous:
+            flag |= _feedback(tmp, pl, k, lo, hi, tol, w)
+        for i in range(N):
+            k4[i] = tmp[N + i]
+        _accel(tmp, p, u, k4)
         for i in range(n2):
-            x[i] = x[i] + (h / 6.0) * (w.k1[i] + 2.0 * w.k2[i] + 2.0 * w.k3[i] + w.k4[i])
+            x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
     finite = True
     for i in range(n2):
         out[i] = x[i]
@@ -185,6 +190,8 @@ def rk4_row(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, w):
         flag |= FLAG_NONFINITE
     return flag
 
+
+# --- rows: end
 
 # ---------------------------------------------------------------------- batched kernels (rows of B)
 
@@ -229,7 +236,7 @@ def aux(S, P, out):
 
 @njit(cache=True)
 def cg(S, P, C, G):
-    """``C`` and ``G(phi)`` of every row."""
+    """``C`` (by block rows, ``(B, M, BLOCK)``) and ``G(phi)`` of every row."""
     for r in range(S.shape[0]):
         _cg(S[r], P[r], C[r], G[r])
 

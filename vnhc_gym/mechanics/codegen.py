@@ -32,7 +32,7 @@ if TYPE_CHECKING:  # sympy is imported by the functions that generate code, neve
     from vnhc_gym.mechanics.constraint import SymbolicLaw
 
 __all__ = ["CODEGEN_VERSION", "CORE_SOURCES", "fill_template", "generate_source", "module_key", "recipe_parts",
-           "sources_digest"]
+           "sources_digest", "splice"]
 
 #: Bumped when the generated text changes in a way the hashed sources do not show.
 CODEGEN_VERSION = "20"
@@ -110,9 +110,11 @@ class _Writer:
         self.param_syms = list(system.param_symbols)
         self.printer = _printer_class()({"fully_qualified_modules": True, "standard": "python3"})
 
-    def body(self, assignments: list[tuple[str, sp.Expr]], extra_reads: str = "", state: str = "s") -> list[str]:
+    def body(self, assignments: list[tuple[str, sp.Expr]], extra_reads: str = "", state: str = "s",
+             indexed: bool = False) -> list[str]:
         """Straight-line code for ``target = expr`` pairs with shared subexpressions, reading only
-        the state and parameter entries the expressions use.
+        the state and parameter entries the expressions use (``s[i]``, ``p[i]``; ``s[si[i]]``,
+        ``p[pi[i]]`` if ``indexed``).
 
         The state entries are named ``<state>_i``.  The name matters to the last bit: sympy orders
         the terms of a sum by their symbols' names, and floating-point sums depend on the order.
@@ -123,8 +125,9 @@ class _Writer:
         subs.update({x: sp.Symbol(f"p_{i}") for i, x in enumerate(self.param_syms)})
         exprs = [sp.sympify(e) for _, e in assignments]
         free: set[sp.Symbol] = set().union(*(e.free_symbols for e in exprs)) if exprs else set()
-        reads = [f"{state}_{i} = s[{i}]" for i, x in enumerate(self.state_syms) if x in free]
-        reads += [f"p_{i} = p[{i}]" for i, x in enumerate(self.param_syms) if x in free]
+        si, pi = ("si[{}]", "pi[{}]") if indexed else ("{}", "{}")
+        reads = [f"{state}_{i} = s[{si.format(i)}]" for i, x in enumerate(self.state_syms) if x in free]
+        reads += [f"p_{i} = p[{pi.format(i)}]" for i, x in enumerate(self.param_syms) if x in free]
         temps, reduced = sp.cse([e.xreplace(subs) for e in exprs], symbols=sp.numbered_symbols("t_"),
                                 optimizations="basic")
         lines = ["; ".join(reads)] if reads else []
@@ -155,7 +158,7 @@ def generate_source(law: SymbolicLaw, outputs: Mapping[str, sp.Expr] | None = No
 
     Besides the kernels, the module records what :class:`~vnhc_gym.mechanics.ConstrainedSystem`
     needs to run without sympy: ``NAME``, ``N``, ``M``, ``NP``, ``NG``, ``NAUX``, ``HOLONOMIC``,
-    ``DIAGONAL_C``, ``PARAM_NAMES``, ``PARAM_DEFAULTS`` and ``OUTPUT_NAMES``.
+    ``BLOCK``, ``PARAM_NAMES``, ``PARAM_DEFAULTS`` and ``OUTPUT_NAMES``.
     """
     import sympy as sp
 
@@ -169,18 +172,28 @@ def generate_source(law: SymbolicLaw, outputs: Mapping[str, sp.Expr] | None = No
     diagonal = all(sp.simplify(law.C[b, a]) == 0 for b in range(m) for a in range(m) if a != b)
     defaults = ", ".join(_literal(v) for v in system.default_param_values())
     phi_h = law.phi_h if law.phi_h is not None else sp.zeros(m, 1)
+    outs = list(outputs.values())
     functions = [
         # The stage state of RK4 is z (the name fixes the order of the sums; see _Writer.body).
         w.function("_accel(s, p, u, ds)", "ds[N:] = a0(s) + Y(s) u.",
                    w.body([(f"ds[{n + i}]", accel[i]) for i in range(n)],
                           "; ".join(f"u_{a} = u[{a}]" for a in used_u), state="z")),
         w.function("_phi(s, p, out)", "out = phi(s).", w.body([(f"out[{b}]", law.phi[b]) for b in range(m)])),
+        # The same, reading s[si], p[pi], u[ui] and writing at indices: a fleet's unit works in place.
+        w.function("_accel_at(s, p, u, ds, si, pi, ui)", "ds[si[N:]] = a0 + Y u of s[si], p[pi], u[ui].",
+                   w.body([(f"ds[si[{n + i}]]", accel[i]) for i in range(n)],
+                          "; ".join(f"u_{a} = u[ui[{a}]]" for a in used_u), state="z", indexed=True)),
+        w.function("_phi_at(s, p, out, si, pi, oi)", "out[oi] = phi of s[si], p[pi].",
+                   w.body([(f"out[oi[{b}]]", law.phi[b]) for b in range(m)], indexed=True)),
+        w.function("_aux_at(s, p, out, si, pi, oi)", "out[oi] = the extra outputs of s[si], p[pi].",
+                   w.body([(f"out[oi[{j}]]", e) for j, e in enumerate(outs)], indexed=True)),
         w.function("_phi_h(s, p, out)", "out = phi_h(q) (holonomic constraints).",
                    w.body([(f"out[{b}]", phi_h[b]) for b in range(m)])),
         w.function("_aux(s, p, out)", "The extra outputs.",
                    w.body([(f"out[{j}]", e) for j, e in enumerate(outputs.values())])),
-        w.function("_cg(s, p, C, G)", "C and G(phi).",
-                   w.body([(f"C[{b}, {a}]", law.C[b, a]) for b in range(m) for a in range(m)]
+        w.function("_cg(s, p, C, G)", "C (by block rows) and G(phi).",
+                   w.body([(f"C[{b}, {0 if diagonal else a}]", law.C[b, a]) for b in range(m) for a in range(m)
+                           if not diagonal or a == b]
                           + [(f"G[{b}]", law.G[b]) for b in range(m)])),
         w.function("_dyn(s, p, a0, Y)", "Drift a0 and input fields Y.",
                    w.body([(f"a0[{i}]", law.a0[i]) for i in range(n)]
@@ -189,7 +202,7 @@ def generate_source(law: SymbolicLaw, outputs: Mapping[str, sp.Expr] | None = No
     ]
     constants = [
         f"NAME = {system.name!r}", f"N = {n}", f"M = {m}", f"NP = {len(w.param_syms)}", f"NG = {law.n_gains}",
-        f"NAUX = {len(outputs)}", f"HOLONOMIC = {law.phi_h is not None}", f"DIAGONAL_C = {diagonal}",
+        f"NAUX = {len(outputs)}", f"HOLONOMIC = {law.phi_h is not None}", f"BLOCK = {1 if diagonal else m}",
         f"PARAM_NAMES = {tuple(str(p) for p in w.param_syms)!r}",
         f"PARAM_DEFAULTS = ({defaults}{',' if len(w.param_syms) == 1 else ''})",
         f"OUTPUT_NAMES = {tuple(outputs)!r}",
@@ -198,14 +211,20 @@ def generate_source(law: SymbolicLaw, outputs: Mapping[str, sp.Expr] | None = No
     return fill_template(_HERE / "_template.py", "system", block, f"system {system.name!r}")
 
 
-def fill_template(template: str | os.PathLike[str], marker: str, block: str, what: str) -> str:
-    """The text of the module ``template`` with the lines between its ``# --- <marker>: begin`` and
-    ``# --- <marker>: end`` lines replaced by ``block``."""
-    lines = Path(template).read_text(encoding="utf-8").splitlines(keepends=True)
+def splice(text: str, marker: str, block: str) -> str:
+    """``text`` with the lines between its ``# --- <marker>: begin`` and ``# --- <marker>: end`` lines
+    (both included) replaced by ``block``."""
+    lines = text.splitlines(keepends=True)
     try:
         begin = next(i for i, line in enumerate(lines) if line.startswith(f"# --- {marker}: begin"))
         end = next(i for i, line in enumerate(lines) if line.startswith(f"# --- {marker}: end"))
     except StopIteration:  # pragma: no cover - the templates are part of the package
-        raise RuntimeError(f"{template} has no {marker!r} markers") from None
+        raise RuntimeError(f"template has no {marker!r} markers") from None
+    return "".join(lines[:begin]) + block + "".join(lines[end + 1:])
+
+
+def fill_template(template: str | os.PathLike[str], marker: str, block: str, what: str) -> str:
+    """The text of the module ``template`` with its ``marker`` block replaced by ``block`` (see
+    :func:`splice`), headed by a line that says it is generated."""
     head = f"# Generated by vnhc_gym from {Path(template).name} for {what}; do not edit (delete to regenerate).\n"
-    return head + "".join(lines[:begin]) + block + "".join(lines[end + 1:])
+    return head + splice(Path(template).read_text(encoding="utf-8"), marker, block)

@@ -83,7 +83,8 @@ def simulate(model: ConstrainedSystem, state0: ArrayLike, dt: float, n_steps: in
     all_flags = np.zeros(b, dtype=np.int64)
     j = 1
     for step in range(1, n_steps + 1):
-        model.kernels.rk4(cur, p, p, uh, k, mode, lo, hi, float(dt), int(substeps), model.singular_tol, nxt, u_step, flags)
+        model.kernels.rk4(cur, p, p, uh, k, mode, lo, hi, float(dt), int(substeps), model.singular_tol, nxt, u_step,
+                          flags)
         all_flags |= flags
         cur, nxt = nxt, cur
         if j < n_rec and step == rec_idx[j]:

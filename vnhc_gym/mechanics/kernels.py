@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["FLAG_NONFINITE", "FLAG_SINGULAR", "SINCOS_MAX_ARG", "pcos", "psin", "psincos", "solve_diagonal", "solve_small"]
+__all__ = ["FLAG_NONFINITE", "FLAG_SINGULAR", "SINCOS_MAX_ARG", "pcos", "psin", "psincos", "solve_blocks"]
 
 # Bits of the per-row status flag returned by the generated kernels.
 FLAG_SINGULAR = 1  #: C was singular or ill-conditioned at some evaluation (the law's u was set to 0).
@@ -18,80 +18,66 @@ FLAG_NONFINITE = 2  #: the state became non-finite.
 
 
 @njit(cache=True)
-def solve_small(a: np.ndarray, b: np.ndarray, x: np.ndarray, tol: float) -> int:
-    """Solve ``a x = b`` for a small square ``a`` by Gaussian elimination with partial pivoting.
+def solve_blocks(c: np.ndarray, b: np.ndarray, x: np.ndarray, tol: float) -> int:
+    """Solve ``C x = b`` for a block-diagonal ``C`` stored by block rows, by Gaussian elimination with
+    partial pivoting in each block.
 
-    ``a`` and ``b`` are overwritten.  Returns ``FLAG_SINGULAR`` (and ``x = 0``) when a pivot is not
-    larger than ``tol * max|a|`` (relative to the matrix's own scale, so multiplying ``a`` by any
-    nonzero number never changes the verdict), when ``a`` is zero, or when an entry is not finite;
-    else 0.
+    ``c`` has shape ``(m, k)``: rows ``i k .. (i + 1) k - 1`` hold the ``i``-th ``k x k`` diagonal
+    block (``k = m``: a full matrix; ``k = 1``: a diagonal one).  ``c`` and ``b`` are overwritten.
+    Returns ``FLAG_SINGULAR`` (and ``x = 0``) when a pivot is not larger than ``tol * max|C|``
+    (relative to the matrix's own scale, so multiplying ``C`` by any nonzero number never changes
+    the verdict), when ``C`` is zero, or when an entry is not finite; else 0.
     """
-    m = a.shape[0]
+    m, k = c.shape
     scale = 0.0
     finite = True
     for i in range(m):
-        for j in range(m):
-            v = abs(a[i, j])
+        for j in range(k):
+            v = abs(c[i, j])
             if not v < np.inf:  # inf or NaN
                 finite = False
             elif v > scale:
                 scale = v
     thresh = tol * scale
-    for k in range(m):
-        piv = k
-        best = abs(a[k, k])
-        for i in range(k + 1, m):
-            v = abs(a[i, k])
-            if v > best:
-                best = v
-                piv = i
-        if not (finite and best > thresh and best > 0.0):
-            for i in range(m):
-                x[i] = 0.0
-            return FLAG_SINGULAR
-        if piv != k:
-            for j in range(m):
-                tmp = a[k, j]
-                a[k, j] = a[piv, j]
-                a[piv, j] = tmp
-            tmp = b[k]
-            b[k] = b[piv]
-            b[piv] = tmp
-        for i in range(k + 1, m):
-            f = a[i, k] / a[k, k]
-            for j in range(k, m):
-                a[i, j] -= f * a[k, j]
-            b[i] -= f * b[k]
-    for i in range(m - 1, -1, -1):
-        acc = b[i]
-        for j in range(i + 1, m):
-            acc -= a[i, j] * x[j]
-        x[i] = acc / a[i, i]
-    return 0
-
-
-@njit(cache=True)
-def solve_diagonal(c: np.ndarray, b: np.ndarray, x: np.ndarray, tol: float) -> int:
-    """``x = b / diag(c)`` for a ``c`` that is diagonal by construction; the same singular test as
-    :func:`solve_small` (a diagonal entry not larger than ``tol`` times the largest one, or zero,
-    or any entry not finite: ``FLAG_SINGULAR`` and ``x = 0``)."""
-    m = c.shape[0]
-    scale = 0.0
-    finite = True
-    for i in range(m):
-        v = abs(c[i, i])
-        if not v < np.inf:
-            finite = False
-        elif v > scale:
-            scale = v
-    for i in range(m):
-        v = abs(c[i, i])
-        if not (finite and v > tol * scale and v > 0.0):
-            for j in range(m):
-                x[j] = 0.0
-            return FLAG_SINGULAR
-    for i in range(m):
-        x[i] = b[i] / c[i, i]
+    ok = finite and scale > 0.0
+    for blk in range(0, m, k):
+        if not ok:
+            break
+        for col in range(k):  # eliminate below the pivot of column col of this block
+            piv = blk + col
+            best = abs(c[piv, col])
+            for i in range(blk + col + 1, blk + k):
+                v = abs(c[i, col])
+                if v > best:
+                    best = v
+                    piv = i
+            if not best > thresh:
+                ok = False
+                break
+            row = blk + col
+            if piv != row:
+                for j in range(k):
+                    tmp = c[row, j]
+                    c[row, j] = c[piv, j]
+                    c[piv, j] = tmp
+                tmp = b[row]
+                b[row] = b[piv]
+                b[piv] = tmp
+            for i in range(row + 1, blk + k):
+                f = c[i, col] / c[row, col]
+                for j in range(col, k):
+                    c[i, j] -= f * c[row, j]
+                b[i] -= f * b[row]
+        if ok:
+            for col in range(k - 1, -1, -1):
+                acc = b[blk + col]
+                for j in range(col + 1, k):
+                    acc -= c[blk + col, j] * x[blk + j]
+                x[blk + col] = acc / c[blk + col, col]
+    if not ok:
+        for i in range(m):
+            x[i] = 0.0
+        return FLAG_SINGULAR
     return 0
 
 

@@ -26,6 +26,7 @@ if TYPE_CHECKING:  # the symbolic layer (sympy) is imported only when a model ne
     import sympy as sp
 
     from vnhc_gym.mechanics.constraint import HolonomicConstraint, SymbolicLaw, VelocityConstraint
+    from vnhc_gym.mechanics.fleet import FleetLayout
     from vnhc_gym.mechanics.system import MechanicalSystem
 
 __all__ = ["ConstrainedSystem", "SingularControlError", "Feedback", "FLAG_SINGULAR", "FLAG_NONFINITE",
@@ -39,7 +40,7 @@ Array = NDArray[np.float64]
 
 #: Names every generated system module defines (a cache entry without one of them is rebuilt).
 KERNELS = ("rk4", "rk4_row", "law", "law_row", "work", "phi", "phi_h", "aux", "cg", "dyn", "energy", "_phi", "_aux",
-           "NAME", "N", "M", "NP", "NG", "NAUX", "HOLONOMIC", "PARAM_NAMES", "PARAM_DEFAULTS", "OUTPUT_NAMES")
+           "NAME", "N", "M", "NP", "NG", "NAUX", "HOLONOMIC", "BLOCK", "PARAM_NAMES", "PARAM_DEFAULTS", "OUTPUT_NAMES")
 
 Parts = tuple["MechanicalSystem", "VelocityConstraint | HolonomicConstraint", "dict[str, sp.Expr]"]
 #: A recipe's builder: returns ``(system, constraint)`` or ``(system, constraint, outputs)``.
@@ -92,9 +93,10 @@ class ConstrainedSystem:
     ``(B, n_params)`` batch.
 
     The constructor keys the generated-code cache on the symbolic input itself (and on the text of
-    the core files that derive and compile it), so it needs sympy.  :meth:`from_recipe` (used by the shipped systems) keys it on a small recipe and the
-    source files instead, and builds the symbolic side only when it is asked for: a warm start
-    neither imports sympy nor derives anything.
+    the core files that derive and compile it), so it needs sympy.  :meth:`from_recipe` (used by
+    the shipped systems) keys it on a small recipe and the source files instead, and builds the
+    symbolic side only when it is asked for: a warm start neither imports sympy nor derives
+    anything.
     """
 
     name: str
@@ -115,6 +117,7 @@ class ConstrainedSystem:
 
         self.singular_tol = _check_tol(singular_tol)
         self._recipe: tuple[object, ...] | None = None
+        self._fleet: tuple[ConstrainedSystem, FleetLayout] | None = None
         self._build: Builder | None = None
         self._parts: Parts | None = (system, constraint, dict(outputs or {}))
         self._law: SymbolicLaw | None = None
@@ -152,8 +155,9 @@ class ConstrainedSystem:
         sources : iterable of path
             The files that define what ``build`` returns (its own module, the modules it draws
             expressions from).  The cache key is ``recipe`` + a sha256 of their text and of the
-            core files (``codegen.CORE_SOURCES``): editing any of them regenerates the module.  A change that these files do not show (a builder
-            reading a data file, say) must change ``recipe``.
+            core files (``codegen.CORE_SOURCES``): editing any of them regenerates the module.  A
+            change that these files do not show (a builder reading a data file, say) must change
+            ``recipe``.
         singular_tol : float, default 1e-10
 
         Notes
@@ -169,8 +173,15 @@ class ConstrainedSystem:
         self._build = build
         self._parts = None
         self._law = None
+        self._fleet = None
         self._key = module_key(recipe_parts(self._recipe), sources)
-        self.kernels = k = self._load()
+        self.kernels = self._load()
+        self._read_metadata()
+        return self
+
+    def _read_metadata(self) -> None:
+        """Sizes, names and defaults from the compiled module (no sympy needed)."""
+        k = self.kernels
         self.name = str(k.NAME)
         self.n = int(k.N)
         self.m = int(k.M)
@@ -179,13 +190,53 @@ class ConstrainedSystem:
         self.param_names = tuple(k.PARAM_NAMES)
         self.default_params = np.array(k.PARAM_DEFAULTS, dtype=np.float64)
         self.output_names = tuple(k.OUTPUT_NAMES)
+
+    @classmethod
+    def fleet(cls, unit: ConstrainedSystem, layout: FleetLayout, *, build: Builder | None = None,
+              singular_tol: float = 1e-10) -> ConstrainedSystem:
+        """A fleet of ``layout.replicas`` copies of ``unit`` sharing an autonomous part, compiled once
+        for any number of copies (see :mod:`vnhc_gym.mechanics.fleet`).
+
+        Parameters
+        ----------
+        unit : ConstrainedSystem
+            The unit system (with its constraint).
+        layout : FleetLayout
+            Where each copy sits in the fleet's state and parameters.
+        build : callable, optional
+            ``build() -> (system, constraint)`` of the whole fleet written out, for ``system``,
+            ``constraint`` and ``symbolic`` (display and tests); not needed to run anything.
+        singular_tol : float, default 1e-10
+        """
+        from vnhc_gym.mechanics import fleet as _fleet
+
+        self = cls.__new__(cls)
+        self.singular_tol = _check_tol(singular_tol)
+        self._recipe = ("fleet", layout.name, layout.replicas)
+        self._build = build
+        self._parts = None
+        self._law = None
+        self._fleet = (unit, layout)
+        self._key = module_key(["fleet", unit._key, layout.digest()], [_fleet.__file__ or "",
+                                                                      Path(_fleet.__file__).with_name("_fleet.py")])
+        self.kernels = self._load()
+        self._read_metadata()
         return self
 
     def _load(self) -> ModuleType:
-        label = "/".join(map(str, self._recipe)) if self._recipe is not None else self._symbolic_parts()[0].name
+        if self._fleet is not None:
+            label = f"{self._fleet[1].name} (a fleet of {self._fleet[0].name})"
+        elif self._recipe is not None:
+            label = "/".join(map(str, self._recipe))
+        else:
+            label = self._symbolic_parts()[0].name
         return load_module(self._key, self._make_source, label=label, required=KERNELS)
 
     def _make_source(self) -> str:
+        if self._fleet is not None:
+            from vnhc_gym.mechanics.fleet import fleet_source
+
+            return fleet_source(*self._fleet)
         from vnhc_gym.mechanics.codegen import generate_source
 
         return generate_source(self.symbolic, self._outputs)
@@ -207,7 +258,9 @@ class ConstrainedSystem:
     # ------------------------------------------------------------------ symbolic side
     def _symbolic_parts(self) -> Parts:
         if self._parts is None:
-            assert self._build is not None  # set by from_recipe whenever _parts is None
+            if self._build is None:
+                raise ValueError(f"{self!r} has no symbolic form: it was built without one (pass build= to "
+                                 "ConstrainedSystem.fleet)")
             system, constraint, *rest = self._build()
             outputs = dict(rest[0] or {}) if rest else {}
             seen = (system.name, system.n, system.m, tuple(str(p) for p in system.params), tuple(outputs))
@@ -315,9 +368,15 @@ class ConstrainedSystem:
         """``(C, G(phi))``: ``C[b, a] = d phi^b/d qd . Y^a`` and the Lie derivative along the drift."""
         s, single = self._states(state)
         b = s.shape[0]
-        c = np.empty((b, self.m, self.m))
+        k = int(self.kernels.BLOCK)
+        blocks = np.empty((b, self.m, k))
         g = np.empty((b, self.m))
-        self.kernels.cg(s, self._params(params, b), c, g)
+        self.kernels.cg(s, self._params(params, b), blocks, g)
+        # Expand the block rows into the full m x m matrix.
+        c = np.zeros((b, self.m, self.m))
+        rows = np.arange(self.m)
+        for j in range(k):
+            c[:, rows, rows // k * k + j] = blocks[:, :, j]
         return self._out(c, single), self._out(g, single)
 
     def dynamics(self, state: ArrayLike, params: ArrayLike | None = None) -> tuple[Array, Array]:

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from vnhc_gym.mechanics import ConstrainedSystem
+from vnhc_gym.mechanics.fleet import FleetLayout
 
 if TYPE_CHECKING:
     from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint
@@ -76,14 +77,33 @@ def flocking_system(n_agents: int = 4) -> tuple[MechanicalSystem, VelocityConstr
 
 @cache
 def make_flocking(n_agents: int = 4) -> ConstrainedSystem:
-    """Compiled flocking system (cached per ``n_agents``).
+    """Compiled flocking system of ``n_agents`` particles (cached per ``n_agents``).
 
-    Parameters are ``(m_1, ..., m_N, g)``, defaults ``m_i = 2``, ``g = 10`` (the paper's).
-    Keyed on the recipe ``("flocking", n_agents)`` and this file's text: a warm start does not
-    import sympy (see :meth:`ConstrainedSystem.from_recipe`).
+    A fleet (:meth:`ConstrainedSystem.fleet`) of ``n_agents - 1`` copies of the two-particle system
+    (one follower and the leader, which every copy shares): the unit is compiled once, whatever
+    ``n_agents`` is.  Parameters are ``(m_1, ..., m_N, g)``, defaults ``m_i = 2``, ``g = 10`` (the
+    paper's); the state is ``(x_1..x_N, z_1..z_N, xd_1..xd_N, zd_1..zd_N)``, leader last.
     """
     n = _check_n_agents(n_agents)
-    return ConstrainedSystem.from_recipe(("flocking", n), partial(flocking_system, n), sources=(__file__,))
+    if n > MAX_AGENTS:
+        raise ValueError(f"n_agents must be <= {MAX_AGENTS}, got {n}")
+    unit = ConstrainedSystem.from_recipe(("flocking", 2), partial(flocking_system, 2), sources=(__file__,))
+    return ConstrainedSystem.fleet(unit, flocking_layout(n), build=partial(flocking_system, n))
+
+
+def flocking_layout(n_agents: int) -> FleetLayout:
+    """Where follower ``b`` and the leader sit in the ``n_agents``-particle state, for the fleet of
+    two-particle units (unit coordinates ``(x_follower, x_leader, z_follower, z_leader)``, unit
+    parameters ``(m_follower, m_leader, g)``)."""
+    n = n_agents
+    followers = np.arange(n - 1)
+    leader = np.full(n - 1, n - 1)
+    q = np.stack([followers, leader, n + followers, n + leader], axis=1)
+    return FleetLayout(
+        name=f"flocking{n}", n=2 * n, state_map=np.concatenate([q, 2 * n + q], axis=1),
+        param_map=np.stack([followers, leader, np.full(n - 1, n)], axis=1),
+        own=np.array([True, False, True, False]),
+        param_names=(*(f"m_{i}" for i in range(1, n + 1)), "g"), param_defaults=(2.0,) * n + (10.0,))
 
 
 def flocking_state(positions: np.ndarray, velocities: np.ndarray) -> np.ndarray:

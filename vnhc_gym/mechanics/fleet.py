@@ -1,0 +1,157 @@
+"""Fleets: many copies of one unit system that share an autonomous part, compiled once for any size.
+
+Flocking is the example: each follower with the leader is the same two-particle system, and the
+leader falls freely whatever the followers do.  Written out for ``N`` particles, the generated code
+(and numba's compile time and memory) would grow with ``N``; as a fleet, the unit system is
+compiled once and a loop over the copies does the rest (:mod:`vnhc_gym.mechanics._fleet`).
+
+The fleet's law is the unit's law copy by copy: ``phi^b`` involves only copy ``b``'s coordinates,
+copy ``b``'s controls move only its own coordinates, so ``C`` is block-diagonal with the units'
+blocks and ``G`` stacks the units' ``G``.  This needs the shared coordinates to evolve on their own
+(their accelerations depend on neither the copies' coordinates nor the controls), which
+:func:`check_autonomous` verifies on the unit's symbolic law.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vnhc_gym.mechanics.codegen import fill_template, splice
+
+if TYPE_CHECKING:
+    from vnhc_gym.mechanics.constraint import SymbolicLaw
+    from vnhc_gym.mechanics.model import ConstrainedSystem
+
+__all__ = ["FleetLayout", "check_autonomous", "fleet_source"]
+
+_HERE = Path(__file__).parent
+
+
+@dataclass(frozen=True, eq=False)
+class FleetLayout:
+    """Where each copy of a unit system sits in the fleet's state and parameters.
+
+    Parameters
+    ----------
+    name : str
+        The fleet's name (generated-code file names, reprs).
+    n : int
+        The fleet's number of coordinates.
+    state_map : array of int, shape (R, 2 n_unit)
+        The fleet-state index of each entry of copy ``b``'s unit state ``(q, qd)``.
+    param_map : array of int, shape (R, n_unit_params)
+        The fleet-parameter index of each unit parameter of copy ``b``.
+    own : array of bool, shape (n_unit,)
+        The unit coordinates each copy owns; the others are shared by every copy (same fleet index
+        for all) and must evolve on their own.
+    param_names : tuple of str
+        The fleet's parameter names, in the order of its parameter vector.
+    param_defaults : tuple of float
+    output_names : tuple of str
+        Names of the copies' extra outputs (copy ``b``'s after copy ``b - 1``'s).
+    """
+
+    name: str
+    n: int
+    state_map: NDArray[np.int64]
+    param_map: NDArray[np.int64]
+    own: NDArray[np.bool_]
+    param_names: tuple[str, ...]
+    param_defaults: tuple[float, ...]
+    output_names: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        sm = np.asarray(self.state_map, dtype=np.int64)
+        pm = np.asarray(self.param_map, dtype=np.int64)
+        own = np.asarray(self.own, dtype=np.bool_)
+        object.__setattr__(self, "state_map", sm)
+        object.__setattr__(self, "param_map", pm)
+        object.__setattr__(self, "own", own)
+        nu = own.shape[0]
+        if sm.ndim != 2 or sm.shape[1] != 2 * nu or sm.shape[0] < 1:
+            raise ValueError(f"state_map must have shape (R, {2 * nu}), got {sm.shape}")
+        if pm.ndim != 2 or pm.shape[0] != sm.shape[0]:
+            raise ValueError(f"param_map must have shape ({sm.shape[0]}, n_unit_params), got {pm.shape}")
+        if len(self.param_defaults) != len(self.param_names):
+            raise ValueError("param_defaults and param_names must have the same length")
+        n_params = len(self.param_names)
+        if sm.min() < 0 or sm.max() >= 2 * self.n or pm.min(initial=0) < 0 or pm.max(initial=0) >= n_params:
+            raise ValueError("state_map / param_map index outside the fleet's state / parameters")
+        own2 = np.concatenate([own, own])
+        shared = sm[:, ~own2]
+        if (shared != shared[:1]).any():
+            raise ValueError("shared unit coordinates must map to the same fleet index in every copy")
+        owned = sm[:, own2].ravel()
+        covered = np.concatenate([owned, shared[0]])
+        if np.unique(owned).size != owned.size or np.unique(covered).size != 2 * self.n:
+            raise ValueError("every fleet state entry must belong to exactly one copy or to the shared part")
+
+    @property
+    def replicas(self) -> int:
+        """Number of copies ``R``."""
+        return int(self.state_map.shape[0])
+
+    def digest(self) -> str:
+        """A hash of the layout (part of the fleet module's cache key)."""
+        h = hashlib.sha256(repr((self.name, self.n, self.param_names, self.param_defaults,
+                                 self.output_names)).encode())
+        for a in (self.state_map, self.param_map, self.own):
+            h.update(np.ascontiguousarray(a).tobytes())
+        return h.hexdigest()
+
+
+def check_autonomous(law: SymbolicLaw, own: NDArray[np.bool_]) -> None:
+    """Raise ``ValueError`` unless the unit's shared coordinates evolve on their own: their drift
+    does not involve the unit's own coordinates and no control moves them."""
+    import sympy as sp
+
+    system = law.system
+    mine = {system.q[i] for i in range(system.n) if own[i]} | {system.qd[i] for i in range(system.n) if own[i]}
+    for i in range(system.n):
+        if own[i]:
+            continue
+        if law.a0[i].free_symbols & mine:
+            raise ValueError(f"shared coordinate {system.q[i]} is driven by the copies' own coordinates "
+                             f"({sorted(map(str, law.a0[i].free_symbols & mine))}): not a fleet")
+        if any(sp.simplify(law.Y[i, a]) != 0 for a in range(system.m)):
+            raise ValueError(f"shared coordinate {system.q[i]} is moved by a control: not a fleet")
+
+
+def _array(a: NDArray[np.generic]) -> str:
+    return f"np.array({a.tolist()!r}, dtype=np.{a.dtype.name})"
+
+
+def fleet_source(unit: ConstrainedSystem, layout: FleetLayout) -> str:
+    """The generated module of a fleet of ``unit``: the system template with the fleet's expression
+    functions (:mod:`vnhc_gym.mechanics._fleet`) over the unit's compiled module."""
+    check_autonomous(unit.symbolic, layout.own)
+    u = unit.kernels.__name__
+    names = ", ".join(f"{n} as U{n}" for n in ("M", "N", "NAUX", "NG", "NP"))
+    block = "\n".join([
+        f"from {u} import BLOCK, HOLONOMIC  # noqa: F401",
+        f"from {u} import {names}",
+        f"from {u} import _accel_at as _unit_accel_at, _aux_at as _unit_aux_at, _phi_at as _unit_phi_at",
+        f"from {u} import _cg as _unit_cg, _dyn as _unit_dyn, _energy as _unit_energy, _phi_h as _unit_phi_h",
+        "",
+        f"NAME = {layout.name!r}",
+        f"R = {layout.replicas}",
+        f"N = {layout.n}",
+        f"NP = {len(layout.param_names)}",
+        f"PARAM_NAMES = {tuple(layout.param_names)!r}",
+        f"PARAM_DEFAULTS = {tuple(float(v) for v in layout.param_defaults)!r}",
+        f"OUTPUT_NAMES = {tuple(layout.output_names)!r}",
+        f"STATE_MAP = {_array(layout.state_map)}",
+        f"PARAM_MAP = {_array(layout.param_map)}",
+        f"OWN = {_array(layout.own)}",
+        f"CONTROL_MAP = {_array(np.arange(layout.replicas * unit.m).reshape(layout.replicas, unit.m))}",
+        f"AUX_MAP = {_array(np.arange(layout.replicas * len(unit.output_names)).reshape(layout.replicas, -1))}",
+        "",
+    ]) + "\n"
+    fleet = splice((_HERE / "_fleet.py").read_text(encoding="utf-8"), "unit", block)
+    return fill_template(_HERE / "_template.py", "system", fleet, f"fleet {layout.name!r} of {unit.name!r}")

@@ -1,0 +1,1 @@
+"""Training: hyperparameters in RL Zoo's format, training runs, agents."""
