@@ -57,11 +57,11 @@ def _wrappers_unavailable(algo: str, env_id: str) -> str | None:
         module, _, name = path.rpartition(".")
         try:
             cls = getattr(importlib.import_module(module), name)
-        except Exception as e:  # noqa: BLE001 - any import failure means "not there yet"
+        except Exception as e:  # any failure to import means: not there yet
             return f"{path} does not import yet ({type(e).__name__}: {e})"
         try:
             cls(gym.make(env_id), **kwargs).close()
-        except Exception as e:  # noqa: BLE001
+        except Exception as e:
             return f"{path}(**{kwargs}) cannot wrap {env_id} yet ({type(e).__name__}: {e})"
     return None
 
@@ -457,5 +457,6 @@ def test_rl_zoo_train_command(tmp_path, algo, env_id):
     tag, _, pairs = (run / name / "config.yml").read_text(encoding="utf-8").partition("\n")
     assert tag == "!!python/object/apply:collections.OrderedDict"
     section = yaml.safe_load(hyperparams_path(algo).read_text(encoding="utf-8"))[env_id]
-    assert dict(map(tuple, yaml.safe_load(pairs))) == {**section, **SMALL}
+    (items,) = yaml.safe_load(pairs)  # the OrderedDict's one argument: its (key, value) pairs
+    assert dict(map(tuple, items)) == {**section, **SMALL}
     assert (run / "0.monitor.csv").read_text(encoding="utf-8").startswith("#")

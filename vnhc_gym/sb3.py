@@ -1,5 +1,4 @@
-"""Stable-Baselines3 ``VecEnv`` over a Gymnasium ``VectorEnv`` (SB3 cannot take one directly:
-SB3 issues #1608, #1568, #1745).
+"""Stable-Baselines3 ``VecEnv`` over a Gymnasium ``VectorEnv`` (SB3 cannot take one directly).
 
 :class:`GymnasiumVecEnvAdapter` presents any ``gymnasium.vector.VectorEnv`` (the native
 ``vnhc_gym`` vector envs, ``SyncVectorEnv``, ...) with SB3's ``DummyVecEnv`` semantics: a
@@ -12,7 +11,7 @@ finished sub-environments with ``reset(options={"reset_mask": dones})``.
 
 One line for training::
 
-    venv = vnhc_gym.make_sb3_vec_env("vnhc_gym/FlockingAlign-v0", n_envs=8, seed=0, scenario="noisy")
+    venv = vnhc_gym.make_sb3_vec_env("vnhc_gym/FlockingAlign-v1", n_envs=8, seed=0, scenario="noisy")
     PPO("MlpPolicy", venv).learn(100_000)
 
 Importing this module imports Stable-Baselines3 (and torch); ``import vnhc_gym`` does not.

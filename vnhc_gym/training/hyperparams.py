@@ -129,14 +129,14 @@ def _convert(node: ast.AST, source: str, text: str) -> Any:
         return tuple(_convert(e, source, text) for e in node.elts)
     if isinstance(node, ast.Dict):
         out: dict[str, Any] = {}
-        for key, value in zip(node.keys, node.values, strict=True):
+        for key, item in zip(node.keys, node.values, strict=True):
             if key is None:
-                raise _reject(value, source, text, "the ** unpacking of")
+                raise _reject(item, source, text, "the ** unpacking of")
             if not (isinstance(key, ast.Constant) and isinstance(key.value, str)):
                 raise _reject(key, source, text, "the dictionary key (only string keys)")
             if key.value in out:
                 raise _reject(key, source, text, "the repeated key")
-            out[key.value] = _convert(value, source, text)
+            out[key.value] = _convert(item, source, text)
         return out
     if isinstance(node, ast.Call):
         if not (isinstance(node.func, ast.Name) and node.func.id == "dict"):
@@ -344,6 +344,7 @@ def _parse_wrappers(value: Any, key: str, where: str) -> list[tuple[str, dict[st
     items = value if isinstance(value, list) else [value]
     out: list[tuple[str, dict[str, Any]]] = []
     for item in items:
+        kwargs: Any
         if isinstance(item, str):
             name, kwargs = item, {}
         elif isinstance(item, dict) and len(item) == 1:

@@ -1,5 +1,5 @@
 """Gymnasium wrappers: residual learning on top of the geometric law (:class:`ResidualAction`)."""
 
-from vnhc_gym.wrappers.residual import ResidualAction, ResidualPolicy
+from vnhc_gym.wrappers.residual import ResidualAction, ResidualPolicy, ResidualVectorAction
 
-__all__ = ["ResidualAction", "ResidualPolicy"]
+__all__ = ["ResidualAction", "ResidualPolicy", "ResidualVectorAction"]

@@ -1,4 +1,13 @@
-"""Residual reinforcement learning on top of the geometric law."""
+"""Residual reinforcement learning on top of a model-based controller (by default the geometric law).
+
+The agent's action ``a`` is a correction of the base controller's: the environment receives
+``clip(base(obs) + scale * clip(a, -1, 1), -1, 1)``, so an agent that outputs 0 *is* the base
+controller.  :class:`ResidualAction` wraps a single environment (what RL Zoo's ``env_wrapper``
+builds); :class:`ResidualVectorAction` wraps a native vector environment (what ``vnhc-gym train``
+uses); :class:`ResidualPolicy` runs a trained residual agent with its base on the plain environment.
+With ``observe_base=True`` the base action is appended to the observation, so the agent sees what
+it corrects.
+"""
 
 from __future__ import annotations
 
@@ -7,158 +16,171 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.vector import VectorWrapper
 from numpy.typing import NDArray
 
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN
+from vnhc_gym.envs.config import check_number
 
-__all__ = ["ResidualAction", "ResidualPolicy"]
-
-
-def _check_box_unit(space: gym.Space, what: str) -> None:
-    if not isinstance(space, spaces.Box):
-        raise TypeError(f"ResidualAction needs a Box {what} space, got {type(space).__name__}")
+__all__ = ["ResidualAction", "ResidualPolicy", "ResidualVectorAction"]
 
 
-class ResidualAction(gym.ActionWrapper):
-    """Learned residual on top of a base policy: ``applied = clip(base(obs) + scale * a, -1, 1)``.
+def _check_spaces(obs_space: gym.Space, act_space: gym.Space) -> spaces.Box:
+    if not isinstance(obs_space, spaces.Box):
+        raise TypeError(f"residual learning needs a Box observation space, got {type(obs_space).__name__}")
+    if not isinstance(act_space, spaces.Box) or not (np.all(act_space.low == -1.0) and np.all(act_space.high == 1.0)):
+        raise TypeError(f"residual learning needs an action space Box(-1, 1), got {act_space}")
+    return act_space
 
-    The agent's action ``a`` (in ``[-1, 1]``, clipped there first) is a correction of the base
-    policy's action (by default the geometric law of :class:`vnhc_gym.baselines.GeometricController`,
-    computed from the observation with the nominal model).  With ``a = 0`` the wrapped
-    environment behaves exactly as the base policy alone.
+
+def _default_base(env: Any, base: Any, gain: float | None) -> Any:
+    if base is None:
+        from vnhc_gym.baselines import GeometricController
+
+        return GeometricController(env, gain=DEFAULT_GAIN if gain is None else gain)
+    if not hasattr(base, "predict"):
+        raise TypeError(f"base must have a predict(obs) method, got {type(base).__name__}")
+    return base
+
+
+def _with_base(obs_space: spaces.Box, act_space: spaces.Box) -> spaces.Box:
+    """The observation space with the base action appended."""
+    low = np.concatenate([obs_space.low, act_space.low]).astype(obs_space.dtype)
+    high = np.concatenate([obs_space.high, act_space.high]).astype(obs_space.dtype)
+    return spaces.Box(low, high, dtype=obs_space.dtype)  # type: ignore[arg-type]
+
+
+class ResidualAction(gym.Wrapper):
+    """A learned residual on top of a base controller, for a single environment.
 
     Parameters
     ----------
     env : gymnasium.Env
-        Action space ``Box(-1, 1)``, observation space ``Box`` (otherwise ``TypeError``).
+        Action space ``Box(-1, 1)`` and a ``Box`` observation space (else ``TypeError``).
     base : object with ``predict``, optional
-        Base policy (SB3 interface).  Default ``GeometricController(env)``.
+        The base controller (SB3 interface); default ``GeometricController(env, gain)``.
     scale : float, default 0.2
-        Largest residual, as a fraction of the action range.
-    continuous : bool, default False
-        Instead of adding the base action computed from the last observation, run the law
-        *inside the integrator*: ``env.unwrapped.task.set_feedback("continuous", gain)``
-        re-evaluates ``u*`` at every RK4 stage from the **true state** with the **nominal**
-        parameters, and the residual ``scale * a`` (force ``scale * a * force_bound``) is held
-        over the control period and added to it (the total force is clipped to the force
-        bound at every stage).  Because the law then uses the true state, observation noise
-        does not affect the base part (only the learned residual sees the noisy observation);
-        the ``base`` argument is not used.  ``close()`` switches the feedback off again.
+        Largest residual, as a fraction of the action range (0 to 1).
     gain : float, optional
-        Gain of the in-loop law (``continuous=True``); default ``base.gain`` if the base has
-        one, else 1.
+        Gain of the default base (default 5).
+    observe_base : bool, default False
+        Append the base action to the observation.
 
     Notes
     -----
-    ``reset`` stores the observation and calls ``base.reset()`` if the base has one.  Every
-    ``step``'s ``info`` gets ``"base_action"`` and ``"residual_action"`` (float32, action units):
-    in the default mode the base policy's action and ``scale * a``; with ``continuous=True``
-    ``base_action`` is the in-loop law's mean contribution over the period (``force /
-    force_bound - residual``, saturation included).
+    Every ``info`` gets ``"base_action"`` and ``"residual_action"`` (action units).
     """
 
-    def __init__(self, env: gym.Env, base: Any = None, scale: float = 0.2, continuous: bool = False,
-                 gain: float | None = None) -> None:
-        _check_box_unit(env.action_space, "action")
-        _check_box_unit(env.observation_space, "observation")
-        box = env.action_space
-        assert isinstance(box, spaces.Box)
-        if not (np.all(box.low == -1.0) and np.all(box.high == 1.0)):
-            raise TypeError(f"ResidualAction needs an action space Box(-1, 1), got low={box.low}, high={box.high}")
-        if not (np.isfinite(scale) and scale >= 0):
-            raise ValueError(f"scale must be a finite number >= 0, got {scale!r}")
+    def __init__(self, env: gym.Env, base: Any = None, scale: float = 0.2, gain: float | None = None,
+                 observe_base: bool = False) -> None:
+        box = _check_spaces(env.observation_space, env.action_space)
         super().__init__(env)
-        self.scale = float(scale)
-        self.continuous = bool(continuous)
+        self.scale = check_number("scale", scale, low=0.0, high=1.0)
+        self.base = _default_base(env, base, gain)
+        self.observe_base = bool(observe_base)
+        if self.observe_base:
+            self.observation_space = _with_base(env.observation_space, box)  # type: ignore[arg-type]
         self._dtype = box.dtype
-        self._shape = box.shape
-        self._last_obs: NDArray[Any] | None = None
-        self._last_base = np.zeros(box.shape, dtype=self._dtype)
-        self._last_residual = np.zeros(box.shape, dtype=self._dtype)
-        if self.continuous:
-            task = getattr(env.unwrapped, "task", None)
-            if task is None or not hasattr(task, "set_feedback"):
-                raise TypeError("continuous=True needs a vnhc_gym environment (env.unwrapped.task.set_feedback)")
-            if gain is None:
-                gain = float(np.mean(getattr(base, "gain", DEFAULT_GAIN))) if base is not None else DEFAULT_GAIN
-            self.gain: Any = gain
-            self._task = task
-            self.base = base
-            task.set_feedback("continuous", gain)
-        else:
-            if base is None:
-                from vnhc_gym.baselines import GeometricController
+        self._base_action = np.zeros(box.shape, dtype=box.dtype)
 
-                base = GeometricController(env) if gain is None else GeometricController(env, gain=gain)
-            if not hasattr(base, "predict"):
-                raise TypeError(f"base must have a predict(obs) method, got {type(base).__name__}")
-            self.base = base
-            self.gain = getattr(base, "gain", gain)
+    def _observe(self, obs: NDArray[Any], start: bool) -> NDArray[Any]:
+        a, _ = self.base.predict(obs, episode_start=np.array([start]), deterministic=True)
+        self._base_action = np.asarray(a, dtype=self._dtype).reshape(self._base_action.shape)
+        return np.concatenate([obs, self._base_action]).astype(obs.dtype) if self.observe_base else obs
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         obs, info = self.env.reset(seed=seed, options=options)
-        self._last_obs = obs
-        if self.base is not None and hasattr(self.base, "reset"):
-            self.base.reset()
-        return obs, info
-
-    def base_action(self, obs: Any) -> NDArray[Any]:
-        """The base policy's action for ``obs`` (zeros with ``continuous=True``)."""
-        if self.continuous:
-            return np.zeros(self._shape, dtype=self._dtype)
-        a, _ = self.base.predict(obs, deterministic=True)
-        return np.asarray(a, dtype=self._dtype).reshape(self._shape)
-
-    def action(self, action: Any) -> NDArray[Any]:
-        if self._last_obs is None:
-            raise gym.error.ResetNeeded("call reset() before step()")
-        a = np.asarray(action, dtype=np.float64).reshape(self._shape)
-        residual = self.scale * np.clip(a, -1.0, 1.0)
-        base = self.base_action(self._last_obs)
-        self._last_base = base
-        self._last_residual = residual.astype(self._dtype)
-        return np.clip(base.astype(np.float64) + residual, -1.0, 1.0).astype(self._dtype)
+        return self._observe(obs, True), info
 
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
-        obs, reward, terminated, truncated, info = self.env.step(self.action(action))
-        self._last_obs = obs
-        if self.continuous:
-            bound = np.asarray(self._task.force_bound, dtype=np.float64)
-            law = np.asarray(info["force"], dtype=np.float64) / bound - self._last_residual.astype(np.float64)
-            info["base_action"] = law.astype(self._dtype)
-        else:
-            info["base_action"] = self._last_base
-        info["residual_action"] = self._last_residual
-        return obs, reward, terminated, truncated, info
+        residual = self.scale * np.clip(np.asarray(action, dtype=np.float64).reshape(self._base_action.shape), -1, 1)
+        applied = np.clip(self._base_action.astype(np.float64) + residual, -1.0, 1.0).astype(self._dtype)
+        base = self._base_action
+        obs, reward, terminated, truncated, info = self.env.step(applied)
+        info["base_action"] = base
+        info["residual_action"] = residual.astype(self._dtype)
+        return self._observe(obs, False), reward, terminated, truncated, info
 
-    def close(self) -> None:
-        if self.continuous:
-            self._task.set_feedback("open")
-        super().close()
+
+class ResidualVectorAction(VectorWrapper):
+    """:class:`ResidualAction` for a vector environment (one ``predict`` of the base for all rows).
+
+    Works in every autoreset mode: after a step, a sub-environment that starts a new episode (its
+    returned observation is a reset's) tells a stateful base so through ``episode_start``.
+    """
+
+    def __init__(self, env: gym.vector.VectorEnv, base: Any = None, scale: float = 0.2, gain: float | None = None,
+                 observe_base: bool = False) -> None:
+        box = _check_spaces(env.single_observation_space, env.single_action_space)
+        super().__init__(env)
+        self.scale = check_number("scale", scale, low=0.0, high=1.0)
+        self.base = _default_base(env, base, gain)
+        self.observe_base = bool(observe_base)
+        if self.observe_base:
+            self.single_observation_space = _with_base(env.single_observation_space, box)  # type: ignore[arg-type]
+            self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, env.num_envs)
+        self._dtype = box.dtype
+        self._base_action = np.zeros((env.num_envs, *box.shape), dtype=box.dtype)
+        mode = env.metadata.get("autoreset_mode", gym.vector.AutoresetMode.NEXT_STEP)
+        self._same_step = mode == gym.vector.AutoresetMode.SAME_STEP or mode == "SameStep"
+        self._pending = np.zeros(env.num_envs, dtype=bool)
+
+    def _observe(self, obs: NDArray[Any], starts: NDArray[np.bool_]) -> NDArray[Any]:
+        a, _ = self.base.predict(obs, episode_start=starts, deterministic=True)
+        self._base_action = np.asarray(a, dtype=self._dtype).reshape(self._base_action.shape)
+        return np.concatenate([obs, self._base_action], axis=1).astype(obs.dtype) if self.observe_base else obs
+
+    def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[Any, dict[str, Any]]:
+        obs, info = self.env.reset(seed=seed, options=options)
+        n = self.num_envs
+        mask = (options or {}).get("reset_mask")
+        starts = np.ones(n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+        self._pending &= ~starts
+        if mask is not None:  # keep the base actions of the sub-environments not reset
+            old = self._base_action.copy()
+            out = self._observe(obs, starts)
+            self._base_action[~starts] = old[~starts]
+            return out, info
+        return self._observe(obs, starts), info
+
+    def step(self, actions: Any) -> tuple[Any, Any, Any, Any, dict[str, Any]]:
+        residual = self.scale * np.clip(np.asarray(actions, dtype=np.float64).reshape(self._base_action.shape), -1, 1)
+        applied = np.clip(self._base_action.astype(np.float64) + residual, -1.0, 1.0).astype(self._dtype)
+        base = self._base_action
+        obs, reward, terminated, truncated, info = self.env.step(applied)
+        done = np.asarray(terminated) | np.asarray(truncated)
+        # SAME_STEP: done rows already show their new episode; NEXT_STEP: the rows done at the last
+        # step were reset by this one.
+        starts = done if self._same_step else self._pending
+        self._pending = done & ~self._same_step
+        info["base_action"] = base
+        info["residual_action"] = residual.astype(self._dtype)
+        return self._observe(obs, starts.copy()), reward, terminated, truncated, info
 
 
 class ResidualPolicy:
-    """A residual agent and its base as one policy: ``clip(base(obs) + scale * agent(obs), -1, 1)``.
+    """A residual agent and its base as one policy: ``clip(base(obs) + scale * agent(obs'), -1, 1)``
+    (``obs'`` has the base action appended if the agent was trained with ``observe_base``)."""
 
-    For evaluating a residual agent on the *unwrapped* environment with the SB3 ``predict``
-    interface (batched).  Only for ``ResidualAction(continuous=False)`` agents: the in-loop
-    mode needs the environment (wrap it with :class:`ResidualAction` instead).
-    """
-
-    def __init__(self, agent: Any, base: Any, scale: float = 0.2, name: str = "residual") -> None:
+    def __init__(self, agent: Any, base: Any, scale: float = 0.2, observe_base: bool = False,
+                 name: str = "residual") -> None:
         self.agent = agent
         self.base = base
         self.scale = float(scale)
+        self.observe_base = bool(observe_base)
         self.name = name
 
-    def reset(self) -> None:
-        if hasattr(self.base, "reset"):
-            self.base.reset()
-
-    def predict(self, obs: Any, state: Any = None, episode_start: Any = None,
-                deterministic: bool = True) -> tuple[NDArray[np.float32], None]:
-        a, _ = self.agent.predict(obs, deterministic=deterministic)
-        b, _ = self.base.predict(obs, deterministic=True)
-        out = np.clip(np.asarray(b, dtype=np.float64) + self.scale * np.clip(np.asarray(a, dtype=np.float64), -1, 1),
-                      -1.0, 1.0)
-        return out.astype(np.float32), None
+    def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[NDArray[np.float32], Any]:
+        obs = np.asarray(observation, dtype=np.float32)
+        single = obs.ndim == 1
+        batch = obs[None] if single else obs
+        starts = None if episode_start is None else np.asarray(episode_start, dtype=bool).reshape(-1)
+        b, _ = self.base.predict(batch, episode_start=starts, deterministic=True)
+        b = np.asarray(b, dtype=np.float64).reshape(batch.shape[0], -1)
+        seen = np.concatenate([batch, b.astype(np.float32)], axis=1) if self.observe_base else batch
+        a, state = self.agent.predict(seen, state=state, episode_start=starts, deterministic=deterministic)
+        out = np.clip(b + self.scale * np.clip(np.asarray(a, dtype=np.float64).reshape(b.shape), -1, 1), -1.0, 1.0)
+        out32 = out.astype(np.float32)
+        return (out32[0] if single else out32), state

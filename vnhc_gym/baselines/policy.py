@@ -1,0 +1,128 @@
+"""What every baseline shares: the task it reads, observation checks, and SB3's ``predict``."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["Policy", "RandomPolicy", "ZeroPolicy", "spaces_of", "task_of"]
+
+Array = NDArray[np.float64]
+
+
+def task_of(env: Any) -> Any:
+    """The configured :class:`~vnhc_gym.tasks.base.Task` of a vnhc_gym environment (single, wrapped or
+    vector), or ``TypeError``."""
+    obj = env
+    for _ in range(64):
+        task = getattr(obj, "task", None)
+        if task is not None and hasattr(task, "controller_inputs"):
+            return task
+        unwrapped = getattr(obj, "unwrapped", None)
+        if unwrapped is not None and unwrapped is not obj:
+            task = getattr(unwrapped, "task", None)
+            if task is not None and hasattr(task, "controller_inputs"):
+                return task
+        obj = getattr(obj, "env", None)
+        if obj is None:
+            break
+    raise TypeError(f"{type(env).__name__} is not a vnhc_gym environment (single, wrapped or vector): it has no task")
+
+
+def spaces_of(env: Any) -> tuple[gym.Space, gym.Space]:
+    """The single-environment observation and action spaces of a single or vector environment."""
+    if hasattr(env, "single_observation_space"):
+        return env.single_observation_space, env.single_action_space
+    return env.observation_space, env.action_space
+
+
+class Policy:
+    """A policy with Stable-Baselines3's ``predict`` interface, on one observation or a batch.
+
+    Subclasses set ``obs_dim``, ``act_dim`` and ``name`` and implement :meth:`act` (a batch of
+    observations ``(n, d)`` to actions ``(n, m)`` in ``[-1, 1]``).  Stateful ones also implement
+    :meth:`reset_rows` (called for the rows where a new episode starts).
+    """
+
+    obs_dim: int
+    act_dim: int
+    name: str = "policy"
+
+    def check_obs(self, obs: ArrayLike) -> tuple[Array, bool]:
+        """``(batch, single)``: the observations as a ``(n, d)`` float64 array, and whether one was given."""
+        o = np.asarray(obs, dtype=np.float64)
+        if o.ndim == 1 and o.shape[0] == self.obs_dim:
+            return o[None, :], True
+        if o.ndim == 2 and o.shape[1] == self.obs_dim:
+            return o, False
+        raise ValueError(f"observation must have shape ({self.obs_dim},) or (n, {self.obs_dim}), got {o.shape}")
+
+    def act(self, obs: Array) -> Array:
+        raise NotImplementedError
+
+    def reset_rows(self, rows: NDArray[np.bool_]) -> None:
+        """New episodes start in ``rows`` of the next batch (stateless policies: nothing to do)."""
+
+    def reset(self) -> None:
+        """Forget every episode (stateless policies: nothing to do)."""
+
+    def predict(self, observation: ArrayLike, state: Any = None, episode_start: ArrayLike | None = None,
+                deterministic: bool = True) -> tuple[NDArray[np.float32], None]:
+        """Actions for one observation ``(d,)`` or a batch ``(n, d)``: ``(action, None)``.
+
+        The signature is Stable-Baselines3's; ``episode_start`` (a bool per row) tells a stateful
+        policy where new episodes begin; the recurrent ``state`` is unused and returned as None.
+        """
+        o, single = self.check_obs(observation)
+        if episode_start is not None:
+            starts = np.asarray(episode_start, dtype=bool).reshape(-1)
+            if starts.shape[0] != o.shape[0]:
+                raise ValueError(f"episode_start must have {o.shape[0]} entries, got {starts.shape[0]}")
+            if starts.any():
+                self.reset_rows(starts)
+        a = np.asarray(self.act(o), dtype=np.float32)
+        return (a[0] if single else a), None
+
+    def __call__(self, obs: ArrayLike) -> NDArray[np.float32]:
+        return self.predict(obs)[0]
+
+
+class ZeroPolicy(Policy):
+    """Always action 0 (no force): the uncontrolled reference."""
+
+    name = "zero"
+
+    def __init__(self, env: Any = None, *, obs_dim: int | None = None, act_dim: int | None = None) -> None:
+        if env is not None:
+            obs_space, act_space = spaces_of(env)
+            obs_dim, act_dim = int(np.prod(obs_space.shape)), int(np.prod(act_space.shape))
+        if obs_dim is None or act_dim is None:
+            raise TypeError("pass an env or obs_dim= and act_dim=")
+        self.obs_dim, self.act_dim = int(obs_dim), int(act_dim)
+
+    def act(self, obs: Array) -> Array:
+        return np.zeros((obs.shape[0], self.act_dim))
+
+    def __repr__(self) -> str:
+        return "ZeroPolicy()"
+
+
+class RandomPolicy(ZeroPolicy):
+    """Uniform random actions in ``[-1, 1]`` from its own seeded generator."""
+
+    name = "random"
+
+    def __init__(self, env: Any = None, seed: int | None = 0, *, obs_dim: int | None = None,
+                 act_dim: int | None = None) -> None:
+        super().__init__(env, obs_dim=obs_dim, act_dim=act_dim)
+        self.seed = seed
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, obs: Array) -> Array:
+        return self.rng.uniform(-1.0, 1.0, size=(obs.shape[0], self.act_dim))
+
+    def __repr__(self) -> str:
+        return f"RandomPolicy(seed={self.seed})"

@@ -1,0 +1,136 @@
+"""Trained agents as policies: a saved SB3 model with its observation statistics and, for residual
+agents, the base controller it corrects.
+
+:func:`load_agent` returns an :class:`AgentPolicy` whose ``predict`` takes raw environment
+observations and returns the action the environment should receive.  Names without a path
+(``"usv-ppo"``) load from the agents shipped in ``vnhc_gym/agents_zoo``; a path to your own file
+loads with a warning, because SB3 ``.zip`` files contain pickled Python objects (load only files you
+trust).
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["ZOO_DIR", "AgentPolicy", "UntrustedFileWarning", "list_zoo", "load_agent", "sidecar_of"]
+
+#: The agents shipped with the package.
+ZOO_DIR = Path(__file__).resolve().parent.parent / "agents_zoo"
+
+
+class UntrustedFileWarning(UserWarning):
+    """Loading a model file from outside the package (SB3 zips contain pickles)."""
+
+
+def list_zoo() -> list[str]:
+    """Names of the shipped agents (``<task>-<algo>``)."""
+    return sorted(p.stem for p in ZOO_DIR.glob("*.zip"))
+
+
+def sidecar_of(path: str | Path) -> dict[str, Any]:
+    """The JSON sidecar of a saved agent (``<stem>.json`` beside ``<stem>.zip``)."""
+    p = Path(path)
+    side = p.with_suffix(".json")
+    if not side.exists():
+        raise FileNotFoundError(f"no sidecar {side} beside {p} (vnhc-gym train writes one)")
+    return json.loads(side.read_text())
+
+
+class AgentPolicy:
+    """A trained agent on raw observations (SB3 ``predict``; recurrent agents keep their state).
+
+    Parameters
+    ----------
+    model : stable_baselines3 model
+    meta : dict
+        The run's sidecar (algorithm, env id, residual settings, observation statistics).
+    """
+
+    def __init__(self, model: Any, meta: dict[str, Any]) -> None:
+        self.model = model
+        self.meta = meta
+        self.algo = str(meta.get("algo", "ppo"))
+        self.name = str(meta.get("name", self.algo))
+        rms = meta.get("obs_rms")
+        self._rms = None if rms is None else (np.asarray(rms["mean"]), np.asarray(rms["var"]), float(rms["clip"]),
+                                              float(rms.get("epsilon", 1e-8)))
+        self.residual: dict[str, Any] | None = meta.get("residual")
+        self.base: Any = None
+
+    def bind(self, env: Any) -> AgentPolicy:
+        """Build the residual agent's base controller for ``env`` (its force bound, ``dt``); other
+        agents need nothing.  Returns self."""
+        if self.residual is not None:
+            from vnhc_gym.baselines import GeometricController
+
+            self.base = GeometricController(env, gain=self.residual.get("gain", 5.0))
+        return self
+
+    def _normalize(self, obs: NDArray[np.float32]) -> NDArray[np.float32]:
+        if self._rms is None:
+            return obs
+        mean, var, clip, eps = self._rms
+        return np.clip((obs - mean) / np.sqrt(var + eps), -clip, clip).astype(np.float32)
+
+    def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[NDArray[np.float32], Any]:
+        obs = np.asarray(observation, dtype=np.float32)
+        single = obs.ndim == 1
+        batch = obs[None] if single else obs
+        starts = None if episode_start is None else np.asarray(episode_start, dtype=bool).reshape(-1)
+        base = None
+        if self.residual is not None:
+            if self.base is None:
+                raise RuntimeError("a residual agent needs its base controller: call bind(env) first")
+            b, _ = self.base.predict(batch, episode_start=starts, deterministic=True)
+            base = np.asarray(b, dtype=np.float64).reshape(batch.shape[0], -1)
+            if self.residual.get("observe_base"):
+                batch = np.concatenate([batch, base.astype(np.float32)], axis=1)
+        kwargs = {"state": state, "episode_start": starts} if state is not None or starts is not None else {}
+        a, state = self.model.predict(self._normalize(batch), deterministic=deterministic, **kwargs)
+        a = np.asarray(a, dtype=np.float64).reshape(batch.shape[0], -1)
+        if base is not None:
+            a = np.clip(base + float(self.residual["scale"]) * np.clip(a, -1.0, 1.0), -1.0, 1.0)  # type: ignore[index]
+        out = np.clip(a, -1.0, 1.0).astype(np.float32)
+        return (out[0] if single else out), state
+
+    def __repr__(self) -> str:
+        return f"AgentPolicy({self.name!r}, env={self.meta.get('env_id')!r})"
+
+
+def load_agent(path_or_name: str | Path, env: Any = None) -> AgentPolicy:
+    """Load a saved agent (a shipped name such as ``"usv-ppo"`` or a path to a ``.zip``).
+
+    ``env`` binds a residual agent's base controller (default: an environment made from the
+    sidecar's env id and scenario).
+    """
+    p = Path(path_or_name)
+    if p.suffix != ".zip" and not p.exists() and (ZOO_DIR / f"{p.name}.zip").exists():
+        p = ZOO_DIR / f"{p.name}.zip"
+    elif p.suffix != ".zip":
+        p = p.with_suffix(".zip")
+    if not p.exists():
+        raise FileNotFoundError(f"no agent {path_or_name!r}: not a file, and not one of the shipped agents {list_zoo()}")
+    if p.resolve().parent != ZOO_DIR.resolve():
+        warnings.warn(f"loading {p}: SB3 model files contain pickles; load only files you trust",
+                      UntrustedFileWarning, stacklevel=2)
+    meta = sidecar_of(p)
+    if meta.get("algo") == "recurrent_ppo":
+        from sb3_contrib import RecurrentPPO as Algo
+    else:
+        from stable_baselines3 import PPO as Algo
+    model = Algo.load(p, device="cpu")
+    agent = AgentPolicy(model, meta)
+    if agent.residual is not None:
+        if env is None:
+            import gymnasium as gym
+
+            env = gym.make(meta["env_id"], scenario=meta.get("scenario", "nominal"))
+        agent.bind(env)
+    return agent
