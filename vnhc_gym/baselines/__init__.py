@@ -10,7 +10,11 @@ Every policy takes a single, wrapped or vector environment and predicts for one 
 ``(d,)`` or a batch ``(n, d)``, returning float32 actions in ``[-1, 1]``.
 """
 
+from vnhc_gym.baselines.adaptive import AdaptiveController
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
+from vnhc_gym.baselines.observer import ObserverController
 from vnhc_gym.baselines.policy import Policy, RandomPolicy, ZeroPolicy, task_of
+from vnhc_gym.baselines.tuning import CLASSICAL, make_classical, tune
 
-__all__ = ["DEFAULT_GAIN", "GeometricController", "Policy", "RandomPolicy", "ZeroPolicy", "task_of"]
+__all__ = ["AdaptiveController", "CLASSICAL", "DEFAULT_GAIN", "GeometricController", "ObserverController", "Policy",
+           "RandomPolicy", "ZeroPolicy", "make_classical", "task_of", "tune"]

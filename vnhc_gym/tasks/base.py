@@ -73,6 +73,12 @@ class Task:
     reward_sigma: ClassVar[float] = 0.1
     phi_units: ClassVar[str] = ""
     phi_sf_meaning: ClassVar[str] = ""
+    #: Indices of the controller state (:meth:`controller_inputs`) that are angles: an observer
+    #: takes their differences modulo 2 pi.
+    angles: ClassVar[tuple[int, ...]] = ()
+    #: Names of the parameters the ``mismatch`` scenario perturbs (an adaptive controller estimates
+    #: them), in :meth:`controller_model`'s parameter names.
+    uncertain: ClassVar[tuple[str, ...]] = ()
 
     config: EnvConfig
     model: ConstrainedSystem
@@ -128,6 +134,11 @@ class Task:
         the law does not depend on (positions of free-falling particles, say) may be zero.
         """
         raise NotImplementedError
+
+    def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
+        """Controller states and parameters predicted one step ahead, expressed in the frame of the
+        next :meth:`controller_inputs` (identity unless that frame moves with the system)."""
+        return states, params
 
     def describe(self) -> dict[str, Any]:
         """A JSON-friendly summary of the configured task (for result files)."""

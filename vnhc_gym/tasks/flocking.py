@@ -39,6 +39,7 @@ class Args(NamedTuple):
     mismatch: float  #: relative half-width of the mismatch
     preset_state: np.ndarray  #: the preset's start state (unused without a preset)
     use_preset: bool
+    vel_scale: float  #: the scale of the scale-free phi (m/s)
 
 
 DRAW_STAGES = 1  #: the start state needs no output of the model
@@ -81,8 +82,8 @@ def draw(r: int, stage: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
 @njit(cache=True)
 def observe(r: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
     """Velocities in units of the leader's speed, its direction and log speed, ``phi^b / |v_N|^2``;
-    status (non-finite only); scale-free ``phi~^b = phi^b / (|v_N| |v_b|)``, the sine of the angle
-    between follower ``b``'s velocity and the leader's."""
+    status (non-finite only); scale-free ``phi~^b = phi^b / (|v_N| v_scale)``, follower ``b``'s velocity
+    across the leader's direction of motion, over ``v_scale`` (1 m/s)."""
     n = args.n_agents
     nf = n - 1
     vx0 = 2 * n
@@ -103,8 +104,7 @@ def observe(r: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
         out[2 * b] = min(max(rx, -clip), clip)
         out[2 * b + 1] = min(max(rz, -clip), clip)
         out[2 * nf + 3 + b] = min(max(ex * rz - rx * ez, -clip), clip)  # phi_b / |v_N|^2
-        vb = max(math.sqrt(S[vx0 + b] * S[vx0 + b] + S[vz0 + b] * S[vz0 + b]), 1e-12)
-        buf.phi_sf[r, b] = buf.phi[r, b] / (speed * vb)
+        buf.phi_sf[r, b] = buf.phi[r, b] / (speed * args.vel_scale)
     out[2 * nf] = min(max(ex, -clip), clip)
     out[2 * nf + 1] = min(max(ez, -clip), clip)
     out[2 * nf + 2] = min(max(math.log(speed) / LOG_SPEED_SCALE, -clip), clip)
@@ -121,7 +121,14 @@ class FlockingTask(Task):
     default_impulse_scale = 1.0
     reward_sigma = 0.1
     phi_units = "m^2/s^2"
-    phi_sf_meaning = "phi^b / (|v_N| |v_b|): the sine of the angle between follower and leader velocities"
+    phi_sf_meaning = "phi^b / (|v_N| 1 m/s): the follower's velocity across the leader's direction of motion"
+    #: The scale of the scale-free phi (m/s).
+    velocity_scale = 1.0
+
+    @property
+    def uncertain(self) -> tuple[str, ...]:  # type: ignore[override]
+        """The follower masses (what ``mismatch`` perturbs)."""
+        return tuple(f"m_{i}" for i in range(1, self.n_agents))
 
     def __init__(self, config: Any, *, preset: str | None = None, n_agents: int = 4, masses: Any = 2.0,
                  g: float = 10.0) -> None:
@@ -151,7 +158,7 @@ class FlockingTask(Task):
             n_agents=n_agents, nominal=self.nominal,
             mismatch_mask=np.array([True] * (n_agents - 1) + [False, False]), mismatch=config.param_mismatch,
             preset_state=FLOCKING_PRESETS[preset].state() if preset is not None else np.zeros(4 * n_agents),
-            use_preset=preset is not None)
+            use_preset=preset is not None, vel_scale=self.velocity_scale)
 
     def controller_inputs(self, obs: Array) -> tuple[Array, Array]:
         """Velocities rebuilt from the observation (positions 0: the law does not use them) and the
@@ -182,9 +189,11 @@ class FlockingAlignEnv(ConstraintEnv):
     i.e. each follower's velocity parallel (or anti-parallel) to the leader's. The geometric
     law is $u^*_b = m_b\,[g(\dot x_N - \dot x_b) - k_b\phi^b] / (\dot x_N - \dot z_N)$, which gives
     $\phi(t) = e^{-kt}\phi(0)$ under continuous feedback; see ``vnhc_gym.baselines``.
-    Because everyone free-falls, speeds grow without bound (``phi`` with their square); the
-    observation is therefore in units of the leader's speed, and the reward uses the scale-free
-    ``phi~^b = phi^b / (|v_N| |v_b|)``, the sine of the angle between the two velocities.
+    Because everyone free-falls, speeds grow without bound (``phi`` grows with the leader's speed
+    even when the followers' motion relative to it does not change); the observation is therefore
+    in units of the leader's speed, and the reward uses the scale-free
+    ``phi~^b = phi^b / (|v_N| 1 m/s)``: follower ``b``'s velocity across the leader's direction of
+    motion, in m/s (without control it keeps its size while the leader speeds up).
 
     ## Action Space
 
@@ -272,7 +281,8 @@ class FlockingAlignEnv(ConstraintEnv):
 
     ## Version History
 
-    * v1: bounded, scale-free reward ``exp(-mean |phi~| / sigma)`` in ``[0, 1]``.
+    * v1: bounded, scale-free reward ``exp(-mean |phi~| / sigma)`` in ``[0, 1]``, with ``phi~`` the
+      followers' velocities across the leader's direction of motion.
     * v0: the raw reward ``-mean |phi|``.
     """
 

@@ -141,6 +141,8 @@ class USVTask(Task):
     phi_sf_meaning = "phi / (1 m/s): the sideways speed through the water"
     #: The scale of the scale-free phi (m/s).
     velocity_scale = 1.0
+    angles = (2,)  # theta
+    uncertain = ("m", "I", "current_scale")
 
     def __init__(self, config: Any, *, preset: str | None = None, current: str = "random",
                  current_params: dict[str, float] | None = None, mass: float = 10.0, inertia: float = 1.5,
@@ -196,28 +198,41 @@ class USVTask(Task):
         return make_usv("affine")
 
     def controller_inputs(self, obs: Array) -> tuple[Array, Array]:
-        """States ``(x, y, theta, xd, yd, thetad)`` and affine-current parameters from observations.
+        """States ``(x, y, theta, xd, yd, thetad)`` and affine-current parameters from observations,
+        in a frame centred on the boat (``x = y = 0``).
 
-        The affine field ``C(p) = C0 + J (p - p0)`` matches the observed (nominal) current and its
-        gradient at the boat ``p0``, so ``phi`` of the model equals the observed ``phi`` there.
+        The law is the same in every frame (it depends on the current only through its value at
+        the boat), and the centred frame keeps the noisy observed position out of it: the affine
+        field ``C(p) = C0 + J p`` matches the observed (nominal) current ``C0`` and its gradient
+        ``J`` at the boat.
         """
         o = np.asarray(obs, dtype=np.float64)
         model = self.controller_model()
-        x0, y0 = o[:, 7] * self.domain, o[:, 8] * self.domain
+        zero = np.zeros(o.shape[0])
         th = np.arctan2(o[:, 1], o[:, 0])
-        st = np.stack([x0, y0, th, VEL_SCALE * o[:, 2], VEL_SCALE * o[:, 3], RATE_SCALE * o[:, 4]], axis=1)
-        c1, c2 = VEL_SCALE * o[:, 5], VEL_SCALE * o[:, 6]
-        j11, j12, j21, j22 = o[:, 10], o[:, 11], o[:, 12], o[:, 13]
+        st = np.stack([zero, zero, th, VEL_SCALE * o[:, 2], VEL_SCALE * o[:, 3], RATE_SCALE * o[:, 4]], axis=1)
         names = model.param_names
         p = np.tile(model.default_params, (o.shape[0], 1))
         p[:, names.index("m")] = self.nominal[self.model.param_names.index("m")]
         p[:, names.index("I")] = self.nominal[self.model.param_names.index("I")]
         p[:, names.index("current_scale")] = 1.0  # the observed current already includes the nominal scale
-        p[:, names.index("c_c1")] = c1 - (j11 * x0 + j12 * y0)
-        p[:, names.index("c_c2")] = c2 - (j21 * x0 + j22 * y0)
-        for name, col in (("c_j11", j11), ("c_j12", j12), ("c_j21", j21), ("c_j22", j22)):
+        for name, col in (("c_c1", VEL_SCALE * o[:, 5]), ("c_c2", VEL_SCALE * o[:, 6]), ("c_j11", o[:, 10]),
+                          ("c_j12", o[:, 11]), ("c_j21", o[:, 12]), ("c_j22", o[:, 13])):
             p[:, names.index(name)] = col
         return st, p
+
+    def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
+        """The same states and affine currents in the frame centred on each boat (see
+        :meth:`controller_inputs`): the current at the boat becomes the field's constant term."""
+        names = self.controller_model().param_names
+        s, p = states.copy(), params.copy()
+        x, y = s[:, 0].copy(), s[:, 1].copy()
+        j = [p[:, names.index(n)] for n in ("c_j11", "c_j12", "c_j21", "c_j22")]
+        p[:, names.index("c_c1")] += j[0] * x + j[1] * y
+        p[:, names.index("c_c2")] += j[2] * x + j[3] * y
+        s[:, 0] = 0.0
+        s[:, 1] = 0.0
+        return s, p
 
     def current_params(self, params: Array) -> dict[str, float]:
         """A parameter vector's current parameters, for :class:`~vnhc_gym.systems.currents.CurrentField`."""

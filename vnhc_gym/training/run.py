@@ -83,6 +83,7 @@ class TrainConfig:
     threads: int = 1  #: torch threads
     hyperparams: str | None = None  #: another RL Zoo file for the algorithm
     overrides: dict[str, Any] = field(default_factory=dict)  #: hyperparameters that replace the file's
+    env_kwargs: dict[str, Any] = field(default_factory=dict)  #: environment arguments of the training envs only
     progress_bar: bool = False
     name: str | None = None  #: file stem (default ``<task>-<scenario>-<algo>-s<seed>``)
 
@@ -124,7 +125,7 @@ def _make_env(env_id: str, cfg: TrainConfig, n_envs: int, residual: dict[str, An
     from vnhc_gym.wrappers import ResidualVectorAction
 
     venv = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point",
-                        autoreset_mode=AutoresetMode.SAME_STEP, scenario=cfg.scenario)
+                        autoreset_mode=AutoresetMode.SAME_STEP, scenario=cfg.scenario, **cfg.env_kwargs)
     if residual is not None:
         venv = ResidualVectorAction(venv, **residual)
     sb3 = GymnasiumVecEnvAdapter(venv)
