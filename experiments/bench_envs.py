@@ -50,9 +50,9 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from vnhc_gym.envs.task import N_CHUNKS
 
 import vnhc_gym
-from vnhc_gym.envs.task import N_CHUNKS
 
 ENV_IDS = vnhc_gym.ENV_IDS
 PENDULUM = "Pendulum-v1"

@@ -35,7 +35,7 @@ class ObserverController(GeometricController):
     env : gymnasium Env or VectorEnv
         A vnhc_gym environment (the task's nominal model, force bound, ``dt`` and ``substeps``).
     gain : float or array_like, default 5
-    alpha : float, default 0.2
+    alpha : float, default 0.03
         Observer gain in ``(0, 1]``: the weight of the new observation (1: no observer).
     alpha_params : float, optional
         The same for the parameters read from the observation (a current's local model); default
@@ -48,7 +48,7 @@ class ObserverController(GeometricController):
     residual wrappers do.
     """
 
-    def __init__(self, env: Any, gain: ArrayLike = DEFAULT_GAIN, alpha: float = 0.2,
+    def __init__(self, env: Any, gain: ArrayLike = DEFAULT_GAIN, alpha: float = 0.03,
                  alpha_params: float | None = None) -> None:
         super().__init__(env, gain)
         self.alpha = check_number("alpha", alpha, low=0.0, low_open=True, high=1.0)

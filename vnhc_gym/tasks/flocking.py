@@ -119,7 +119,8 @@ class FlockingTask(Task):
     #: 0.5 % of nominal episodes (max over 500 seeds: 264 N).
     default_force_bound = 250.0
     default_impulse_scale = 1.0
-    reward_sigma = 0.1
+    #: Width of the bounded reward (m/s; chosen by experiments/reward_shape.py, see the docs).
+    reward_sigma = 0.3
     phi_units = "m^2/s^2"
     phi_sf_meaning = "phi^b / (|v_N| 1 m/s): the follower's velocity across the leader's direction of motion"
     #: The scale of the scale-free phi (m/s).
@@ -249,7 +250,7 @@ class FlockingAlignEnv(ConstraintEnv):
     | ``substeps``      | 1         | RK4 steps per control period                               |
     | ``force_bound``   | 250.0     | largest force (N)                                          |
     | ``reward``        | "bounded" | ``"bounded"`` (``-v1``) or ``"raw"`` (``-v0``)              |
-    | ``reward_sigma``  | 0.1       | width of the bounded reward                                |
+    | ``reward_sigma``  | 0.3       | width (m/s) of the bounded reward                          |
     | ``phi_scale``, ``reward_clip`` | 1, 100 | the raw reward's scale and clip                  |
     | ``action_cost``   | 0.0       | reward weight of ``mean(a^2)``                             |
     | ``param_mismatch``| 0.0       | true follower masses ``m (1 + U(-d, d))`` per episode      |

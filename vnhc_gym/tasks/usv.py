@@ -136,6 +136,7 @@ class USVTask(Task):
     #: episode (500 seeds), so it never saturates at 100 N.
     default_force_bound = 100.0
     default_impulse_scale = 0.3
+    #: Width of the bounded reward (m/s; chosen by experiments/reward_shape.py, see the docs).
     reward_sigma = 0.1
     phi_units = "m/s"
     phi_sf_meaning = "phi / (1 m/s): the sideways speed through the water"

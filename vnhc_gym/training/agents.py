@@ -62,14 +62,16 @@ class AgentPolicy:
                                               float(rms.get("epsilon", 1e-8)))
         self.residual: dict[str, Any] | None = meta.get("residual")
         self.base: Any = None
+        self.frame_stack = int(meta.get("frame_stack", 1) or 1)
+        self._frames: NDArray[np.float32] | None = None  # the history variant's stacked observations
 
     def bind(self, env: Any) -> AgentPolicy:
         """Build the residual agent's base controller for ``env`` (its force bound, ``dt``); other
         agents need nothing.  Returns self."""
         if self.residual is not None:
-            from vnhc_gym.baselines import GeometricController
+            from vnhc_gym.baselines import make_classical
 
-            self.base = GeometricController(env, gain=self.residual.get("gain", 5.0))
+            self.base = make_classical(self.residual.get("base") or "law", env, gain=self.residual.get("gain", 5.0))
         return self
 
     def _normalize(self, obs: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -77,6 +79,20 @@ class AgentPolicy:
             return obs
         mean, var, clip, eps = self._rms
         return np.clip((obs - mean) / np.sqrt(var + eps), -clip, clip).astype(np.float32)
+
+    def _stack(self, obs: NDArray[np.float32], starts: NDArray[np.bool_] | None) -> NDArray[np.float32]:
+        """The last ``frame_stack`` observations of each row, oldest first (zeros before an episode's
+        first, as SB3's VecFrameStack has them)."""
+        if self.frame_stack <= 1:
+            return obs
+        b, d = obs.shape
+        if self._frames is None or self._frames.shape[0] != b:
+            self._frames = np.zeros((b, self.frame_stack * d), dtype=np.float32)
+        elif starts is not None:
+            self._frames[starts] = 0.0
+        self._frames = np.roll(self._frames, -d, axis=1)
+        self._frames[:, -d:] = obs
+        return self._frames.copy()
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[NDArray[np.float32], Any]:
@@ -92,8 +108,9 @@ class AgentPolicy:
             base = np.asarray(b, dtype=np.float64).reshape(batch.shape[0], -1)
             if self.residual.get("observe_base"):
                 batch = np.concatenate([batch, base.astype(np.float32)], axis=1)
+        seen = self._stack(self._normalize(batch), starts)
         kwargs = {"state": state, "episode_start": starts} if state is not None or starts is not None else {}
-        a, state = self.model.predict(self._normalize(batch), deterministic=deterministic, **kwargs)
+        a, state = self.model.predict(seen, deterministic=deterministic, **kwargs)
         a = np.asarray(a, dtype=np.float64).reshape(batch.shape[0], -1)
         if base is not None:
             a = np.clip(base + float(self.residual["scale"]) * np.clip(a, -1.0, 1.0), -1.0, 1.0)  # type: ignore[index]

@@ -80,11 +80,12 @@ class TrainConfig:
     eval_points: int = 20  #: validation evaluations over the run (plus one at step 0)
     eval_episodes: int = 10  #: validation episodes per evaluation (seeds from VALIDATION_SEED)
     test_episodes: int = 20  #: test episodes at the end (seeds from TEST_SEED)
-    threads: int = 1  #: torch threads
+    threads: int = 2  #: torch threads (measured fastest with one run on two cores: experiments/bench_train.py)
     hyperparams: str | None = None  #: another RL Zoo file for the algorithm
     overrides: dict[str, Any] = field(default_factory=dict)  #: hyperparameters that replace the file's
     env_kwargs: dict[str, Any] = field(default_factory=dict)  #: environment arguments of the training envs only
     progress_bar: bool = False
+    residual_base: str | None = None  #: the residual's base controller (a classical baseline's name)
     name: str | None = None  #: file stem (default ``<task>-<scenario>-<algo>-s<seed>``)
 
 
@@ -93,8 +94,10 @@ def _stem(cfg: TrainConfig, env_id: str) -> str:
 
 
 def _rms_json(venv: Any) -> dict[str, Any] | None:
-    from stable_baselines3.common.vec_env import VecNormalize
+    from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize
 
+    if isinstance(venv, VecFrameStack):
+        venv = venv.venv
     if isinstance(venv, VecNormalize) and venv.norm_obs:
         return {"mean": venv.obs_rms.mean.tolist(), "var": venv.obs_rms.var.tolist(), "clip": venv.clip_obs,
                 "epsilon": venv.epsilon}
@@ -168,12 +171,15 @@ def train(cfg: TrainConfig | None = None, **kwargs: Any) -> dict[str, Any]:
     hp.pop("n_timesteps", None)
     policy = hp.pop("policy", "MlpPolicy")
     normalize = hp.pop("normalize", False)
+    frame_stack = int(hp.pop("frame_stack", 1))
     wrappers = hp.pop("env_wrapper", [])
     residual = None
     for path, wkw in wrappers:
         if path.split(".")[-1] != "ResidualAction":
             raise ValueError(f"env_wrapper {path!r} is not supported by vnhc-gym train (only ResidualAction)")
         residual = dict(wkw)
+        if cfg.residual_base is not None:
+            residual["base"] = cfg.residual_base
     for key in ("learning_rate", "clip_range"):
         if isinstance(hp.get(key), str):
             hp[key] = make_schedule(hp[key])
@@ -182,6 +188,10 @@ def train(cfg: TrainConfig | None = None, **kwargs: Any) -> dict[str, Any]:
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = _stem(cfg, env_id)
     venv = _make_env(env_id, cfg, n_envs, residual, normalize, gamma)
+    if frame_stack > 1:  # the history variant: the last frame_stack observations (RL Zoo's key)
+        from stable_baselines3.common.vec_env import VecFrameStack
+
+        venv = VecFrameStack(venv, frame_stack)
     if cfg.algo == "recurrent_ppo":
         from sb3_contrib import RecurrentPPO as Algo
 
@@ -199,7 +209,7 @@ def train(cfg: TrainConfig | None = None, **kwargs: Any) -> dict[str, Any]:
         "seed": cfg.seed, "n_envs": n_envs, "n_timesteps": n_timesteps, "config": asdict(cfg),
         "hyperparams": _jsonable(hp), "policy": policy, "normalize": _jsonable(normalize),
         "residual": residual if residual is None else {**residual, "gain": residual.get("gain", 5.0)},
-        "version": vnhc_gym.__version__, "code": code_fingerprint(), "obs_rms": None,
+        "version": vnhc_gym.__version__, "code": code_fingerprint(), "obs_rms": None, "frame_stack": frame_stack,
     }
     curve: list[dict[str, float]] = []
     best = {"score": math.inf}
@@ -213,7 +223,7 @@ def train(cfg: TrainConfig | None = None, **kwargs: Any) -> dict[str, Any]:
         agent = _bound(AgentPolicy(model, {**meta, "obs_rms": _rms_json(venv)}), env_id, cfg.scenario)
         res = evaluate(agent, env_id, cfg.scenario, n_episodes=cfg.eval_episodes, seed=VALIDATION_SEED)
         s = res.summary(reps=200)
-        point = {"steps": int(model.num_timesteps), "wall": time.perf_counter() - t_start - t_eval,
+        point = {"steps": int(model.num_timesteps), "wall": t0 - t_start - t_eval,
                  "mean_abs_phi": s["mean_abs_phi"].point, "mean_abs_phi_sf": s["mean_abs_phi_sf"].point,
                  "return": s["return"].point, "terminated": s["terminated"].point}
         curve.append(point)

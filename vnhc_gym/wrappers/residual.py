@@ -34,10 +34,10 @@ def _check_spaces(obs_space: gym.Space, act_space: gym.Space) -> spaces.Box:
 
 
 def _default_base(env: Any, base: Any, gain: float | None) -> Any:
-    if base is None:
-        from vnhc_gym.baselines import GeometricController
+    if base is None or isinstance(base, str):
+        from vnhc_gym.baselines import make_classical
 
-        return GeometricController(env, gain=DEFAULT_GAIN if gain is None else gain)
+        return make_classical(base or "law", env, gain=DEFAULT_GAIN if gain is None else gain)
     if not hasattr(base, "predict"):
         raise TypeError(f"base must have a predict(obs) method, got {type(base).__name__}")
     return base
@@ -57,8 +57,10 @@ class ResidualAction(gym.Wrapper):
     ----------
     env : gymnasium.Env
         Action space ``Box(-1, 1)`` and a ``Box`` observation space (else ``TypeError``).
-    base : object with ``predict``, optional
-        The base controller (SB3 interface); default ``GeometricController(env, gain)``.
+    base : object with ``predict``, or a name, optional
+        The base controller (SB3 interface), or the name of a classical baseline
+        (``"law"``, ``"observer"``, ``"adaptive"``: :data:`vnhc_gym.baselines.CLASSICAL`, with its
+        default settings); default ``"law"``, the geometric law with gain ``gain``.
     scale : float, default 0.2
         Largest residual, as a fraction of the action range (0 to 1).
     gain : float, optional

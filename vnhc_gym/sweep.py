@@ -1,0 +1,483 @@
+"""A grid of training-and-evaluation runs, on one machine or a Ray cluster, resumable, and its report.
+
+A run is one :class:`RunSpec`: a learned agent (``ppo``, ``residual_ppo``, ``ppo_history``) trained
+and tested, or a classical baseline (``law``, ``tuned_law``, ``observer``, ``adaptive``) tuned on
+validation episodes and tested.  Its outputs go to ``<out>/runs/<stem>.*`` under a stable name
+derived from its configuration, with the sidecar (``<stem>.json``) written last: a run with a
+sidecar is finished.  Rerunning the same grid skips finished runs, reruns failed or partial ones,
+and :func:`report` warns when finished runs come from different code versions.
+
+Executors: ``local`` (an in-process loop, or ``jobs`` worker processes) and ``ray`` (one Ray task
+per run with its CPUs declared, retried ``retries`` times, then recorded as failed with its
+traceback; a local Ray instance by default, a cluster with ``address``).  Both run the same
+:func:`run_one`, so they give the same numbers for the same seeds.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+import traceback
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["CLASSICAL_ALGOS", "LEARNED_ALGOS", "RunSpec", "grid", "load_runs", "report", "run_one", "run_sweep",
+           "status"]
+
+#: Learned agents (trained with vnhc_gym.training) and classical baselines (vnhc_gym.baselines.tuning).
+LEARNED_ALGOS = ("ppo", "residual_ppo", "ppo_history")
+CLASSICAL_ALGOS = ("law", "tuned_law", "observer", "adaptive")
+#: The base of residual PPO where the scenario hides information: the observer's estimate under
+#: noise, the adaptive law's under mismatch; the law elsewhere.
+RESIDUAL_BASE = {"noisy": "observer", "mismatch": "adaptive"}
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of a sweep: what to train or tune, where, with which seed and budget."""
+
+    algo: str
+    env: str
+    scenario: str = "nominal"
+    seed: int = 0
+    n_timesteps: int = 1_000_000
+    overrides: tuple[tuple[str, Any], ...] = ()  #: hyperparameter overrides, as sorted pairs
+    test_episodes: int = 20
+    eval_episodes: int = 10
+
+    def __post_init__(self) -> None:
+        if self.algo not in LEARNED_ALGOS + CLASSICAL_ALGOS:
+            raise ValueError(f"algo must be one of {list(LEARNED_ALGOS + CLASSICAL_ALGOS)}, got {self.algo!r}")
+
+    @property
+    def learned(self) -> bool:
+        return self.algo in LEARNED_ALGOS
+
+    def key(self) -> str:
+        """A hash of the configuration (classical runs ignore the budget)."""
+        d = asdict(self)
+        if not self.learned:
+            d.pop("n_timesteps")
+            d.pop("seed")
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:10]
+
+    @property
+    def stem(self) -> str:
+        seed = f"-s{self.seed}" if self.learned else ""
+        return f"{self.env}-{self.scenario}-{self.algo}{seed}-{self.key()}"
+
+
+def grid(envs: Sequence[str], scenarios: Sequence[str], algos: Sequence[str], seeds: Sequence[int],
+         n_timesteps: int, *, overrides: dict[str, Any] | None = None, test_episodes: int = 20,
+         eval_episodes: int = 10, seeds_by_scenario: dict[str, Sequence[int]] | None = None) -> list[RunSpec]:
+    """Every combination; classical baselines get one run per cell (they are deterministic)."""
+    ov = tuple(sorted((overrides or {}).items()))
+    out = []
+    for env in envs:
+        for scenario in scenarios:
+            cell_seeds = list((seeds_by_scenario or {}).get(scenario, seeds))
+            for algo in algos:
+                for seed in (cell_seeds if algo in LEARNED_ALGOS else cell_seeds[:1]):
+                    out.append(RunSpec(algo, env, scenario, int(seed), int(n_timesteps), ov, test_episodes,
+                                       eval_episodes))
+    return out
+
+
+def status(spec: RunSpec, out: str | Path) -> str:
+    """``"done"`` (a sidecar exists), ``"failed"`` (an error file exists) or ``"todo"``."""
+    runs = Path(out) / "runs"
+    if (runs / f"{spec.stem}.json").exists():
+        return "done"
+    if (runs / f"{spec.stem}.error").exists():
+        return "failed"
+    return "todo"
+
+
+def _atomic_json(path: Path, data: Any) -> None:
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(data, indent=1))
+    os.replace(tmp, path)
+
+
+def run_one(spec: RunSpec, out: str | Path, threads: int = 1) -> dict[str, Any]:
+    """Do one run and write its outputs (the sidecar last); returns the sidecar."""
+    runs = Path(out) / "runs"
+    runs.mkdir(parents=True, exist_ok=True)
+    (runs / f"{spec.stem}.error").unlink(missing_ok=True)
+    import vnhc_gym
+    from vnhc_gym.training.run import code_fingerprint, resolve_env_id
+
+    env_id = resolve_env_id(spec.env)
+    t0 = time.perf_counter()
+    if spec.learned:
+        from vnhc_gym.training import TrainConfig, train
+
+        algo = "ppo" if spec.algo == "ppo_history" else spec.algo
+        overrides = dict(spec.overrides)
+        if spec.algo == "ppo_history":
+            overrides.setdefault("frame_stack", 4)
+        cfg = TrainConfig(algo=algo, env=spec.env, scenario=spec.scenario, seed=spec.seed,
+                          n_timesteps=spec.n_timesteps, out=str(runs), threads=threads, name=spec.stem,
+                          eval_episodes=spec.eval_episodes, test_episodes=spec.test_episodes, overrides=overrides,
+                          residual_base=RESIDUAL_BASE.get(spec.scenario, "law") if algo == "residual_ppo" else None)
+        meta = train(cfg)
+        meta["sweep_algo"] = spec.algo
+    else:
+        from vnhc_gym.baselines.tuning import make_classical, tune
+        from vnhc_gym.evaluation import TEST_SEED, evaluate
+
+        best, table = tune(spec.algo, env_id, spec.scenario, n_episodes=spec.eval_episodes)
+        test = evaluate(lambda env: make_classical(spec.algo, env, **best), env_id, spec.scenario,
+                        n_episodes=spec.test_episodes, seed=TEST_SEED)
+        meta = {"name": spec.stem, "algo": spec.algo, "sweep_algo": spec.algo, "env_id": env_id,
+                "scenario": spec.scenario, "settings": best, "tuning": table,
+                "validation_score": min(row["score"] for row in table),
+                "test": {k: v for k, v in test.to_dict().items() if k in ("metrics", "summary", "seed", "n_episodes")},
+                "version": vnhc_gym.__version__, "code": code_fingerprint()}
+    meta["spec"] = asdict(spec)
+    meta["run_wall"] = time.perf_counter() - t0
+    _atomic_json(runs / f"{spec.stem}.json", meta)
+    return meta
+
+
+def _guarded(spec: RunSpec, out: str, threads: int) -> tuple[str, str | None]:
+    """:func:`run_one` that records a failure (with its traceback) instead of raising."""
+    try:
+        run_one(spec, out, threads)
+        return spec.stem, None
+    except Exception:  # noqa: BLE001 - a failed run is recorded, the sweep goes on
+        tb = traceback.format_exc()
+        err = Path(out) / "runs" / f"{spec.stem}.error"
+        err.parent.mkdir(parents=True, exist_ok=True)
+        err.write_text(tb)
+        return spec.stem, tb
+
+
+def _progress(done: int, failed: int, running: int, total: int, t0: float, log: Callable[[str], None]) -> None:
+    finished = done + failed
+    eta = (time.perf_counter() - t0) / finished * (total - finished) if finished else float("nan")
+    log(f"sweep: {done} done, {running} running, {failed} failed of {total}"
+        + (f"; about {eta / 60:.0f} min left" if np.isfinite(eta) else ""))
+
+
+def run_sweep(specs: Iterable[RunSpec], out: str | Path, *, executor: str = "local", jobs: int = 1, threads: int = 1,
+              address: str | None = None, retries: int = 2, rerun_failed: bool = True,
+              log: Callable[[str], None] = print) -> dict[str, list[str]]:
+    """Run every unfinished spec; returns ``{"done": [...], "failed": [...], "skipped": [...]}``.
+
+    ``executor="local"`` runs in this process (``jobs=1``) or in ``jobs`` worker processes;
+    ``"ray"`` submits one task per run to Ray (``address``: an existing cluster, else a local
+    instance; ``RAY_ADDRESS`` works too).  Ctrl-C stops the sweep; finished runs stay.
+    """
+    out = str(out)
+    specs = list(specs)
+    todo = [s for s in specs if status(s, out) == "todo" or (rerun_failed and status(s, out) == "failed")]
+    skipped = [s.stem for s in specs if s not in todo]
+    result: dict[str, list[str]] = {"done": [], "failed": [], "skipped": skipped}
+    log(f"sweep: {len(specs)} runs, {len(skipped)} already finished, {len(todo)} to do ({executor})")
+    t0 = time.perf_counter()
+    if not todo:
+        return result
+    if executor == "ray":
+        return _run_ray(todo, out, threads, address, retries, result, log, t0)
+    if executor != "local":
+        raise ValueError(f"executor must be 'local' or 'ray', got {executor!r}")
+    if jobs <= 1:
+        for i, spec in enumerate(todo):
+            _progress(len(result["done"]), len(result["failed"]), 1, len(todo), t0, log)
+            stem, err = _guarded(spec, out, threads)
+            result["failed" if err else "done"].append(stem)
+            if err:
+                log(f"sweep: {stem} failed:\n{err.strip().splitlines()[-1]}")
+            _ = i
+        return result
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = {pool.submit(_guarded, s, out, threads): s for s in todo}
+        for fut in as_completed(futures):
+            stem, err = fut.result()
+            result["failed" if err else "done"].append(stem)
+            _progress(len(result["done"]), len(result["failed"]), len(todo) - len(result["done"]) - len(result["failed"]),
+                      len(todo), t0, log)
+    return result
+
+
+def _run_ray(todo: list[RunSpec], out: str, threads: int, address: str | None, retries: int,
+             result: dict[str, list[str]], log: Callable[[str], None], t0: float) -> dict[str, list[str]]:
+    try:
+        import ray
+    except ImportError:
+        raise ImportError('the Ray executor needs Ray: pip install "vnhc-gym[sweep]"') from None
+    started_here = not ray.is_initialized()
+    if started_here:
+        ray.init(address=address or os.environ.get("RAY_ADDRESS"), include_dashboard=False, log_to_driver=False,
+                 ignore_reinit_error=True)
+    try:
+        import torch
+
+        gpus = 1 if torch.cuda.is_available() else 0
+    except ImportError:  # pragma: no cover
+        gpus = 0
+    remote = ray.remote(num_cpus=threads, num_gpus=gpus, max_retries=retries, retry_exceptions=True)(run_one)
+    pending = {remote.remote(s, out, threads): s for s in todo}
+    try:
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            spec = pending.pop(ready[0])
+            try:
+                ray.get(ready[0])
+                result["done"].append(spec.stem)
+            except Exception as exc:  # noqa: BLE001 - retries are exhausted: record and go on
+                err = Path(out) / "runs" / f"{spec.stem}.error"
+                err.parent.mkdir(parents=True, exist_ok=True)
+                err.write_text("".join(traceback.format_exception(exc)))
+                result["failed"].append(spec.stem)
+                log(f"sweep: {spec.stem} failed after {retries} retries: {type(exc).__name__}: {exc}")
+            _progress(len(result["done"]), len(result["failed"]), len(pending), len(todo), t0, log)
+    except KeyboardInterrupt:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        log("sweep: interrupted; finished runs are kept")
+        raise
+    finally:
+        if started_here:
+            ray.shutdown()
+    return result
+
+
+# --------------------------------------------------------------------------- report
+def load_runs(out: str | Path) -> list[dict[str, Any]]:
+    """Every finished run's sidecar under ``out/runs``."""
+    return [json.loads(p.read_text()) for p in sorted((Path(out) / "runs").glob("*.json"))]
+
+
+@dataclass
+class Cell:
+    env: str
+    scenario: str
+    runs: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
+
+
+def report(out: str | Path, metric: str = "mean_abs_phi_sf", reps: int = 2000, log: Callable[[str], None] = print
+           ) -> dict[str, Any]:
+    """Tables and figures from the run outputs alone (wherever they ran), in ``out/report``.
+
+    Per cell (environment, scenario): the IQM of ``metric`` over test episodes (pooled over seeds
+    for learned agents) with a 95 % stratified-bootstrap interval; the best classical baseline (the
+    lowest validation score); each learned agent's probability of improvement over it, with its
+    interval; the env steps and training seconds at which the agent's validation IQM first reached
+    the best classical baseline's validation score (or "not reached"); learning curves; and a
+    performance profile of every run's score relative to the k = 5 law.
+    """
+    from vnhc_gym import stats
+
+    runs = load_runs(out)
+    dest = Path(out) / "report"
+    dest.mkdir(parents=True, exist_ok=True)
+    codes = sorted({r.get("code", "?") for r in runs})
+    if len(codes) > 1:
+        log(f"report: WARNING: the runs come from {len(codes)} code versions {codes}; numbers may not compare")
+    cells: dict[tuple[str, str], Cell] = {}
+    for r in runs:
+        spec = r["spec"]
+        cell = cells.setdefault((spec["env"], spec["scenario"]), Cell(spec["env"], spec["scenario"]))
+        cell.runs.setdefault(spec["algo"], []).append(r)
+    rows: list[dict[str, Any]] = []
+    for (env, scenario), cell in sorted(cells.items()):
+        classical = {a: rs[0] for a, rs in cell.runs.items() if a in CLASSICAL_ALGOS}
+        best_name = min(classical, key=lambda a: classical[a]["validation_score"]) if classical else None
+        best_scores = (np.asarray(classical[best_name]["test"]["metrics"][metric]) if best_name else None)
+        for algo, rs in sorted(cell.runs.items()):
+            values = np.concatenate([np.asarray(r["test"]["metrics"][metric]) for r in rs])
+            iv = stats.interval_estimates({"x": values[:, None]}, reps=reps)["x"]
+            row: dict[str, Any] = {"env": env, "scenario": scenario, "algo": algo, "runs": len(rs),
+                                   "iqm": iv.point, "low": iv.low, "high": iv.high,
+                                   "terminated": float(np.mean(np.concatenate(
+                                       [np.asarray(r["test"]["metrics"]["terminated"]) for r in rs]))),
+                                   "best_classical": best_name}
+            if algo in LEARNED_ALGOS and best_scores is not None:
+                poi = stats.probability_of_improvement_interval(values[:, None], best_scores[:, None],
+                                                                lower_is_better=True, reps=reps)
+                row.update({"poi": poi.point, "poi_low": poi.low, "poi_high": poi.high})
+                target = classical[best_name]["validation_score"]  # type: ignore[index]
+                reach_steps, reach_wall = [], []
+                for r in rs:
+                    curve = r.get("curve", [])
+                    steps = [p["steps"] for p in curve]
+                    walls = [p["wall"] for p in curve]
+                    vals = [p[metric] for p in curve]
+                    reach_steps.append(stats.steps_to_parity(steps, vals, target) if curve else None)
+                    reach_wall.append(stats.time_to_parity(walls, vals, target) if curve else None)
+                hit = [s for s in reach_steps if s is not None]
+                row["parity_steps"] = float(np.median(hit)) if len(hit) == len(rs) else None
+                row["parity_runs"] = f"{len(hit)}/{len(rs)}"
+                hitw = [w for w in reach_wall if w is not None]
+                row["parity_seconds"] = float(np.median(hitw)) if len(hitw) == len(rs) else None
+            rows.append(row)
+    (dest / "comparison.json").write_text(json.dumps(rows, indent=1))
+    _write_tables(rows, dest)
+    figures = _figures(cells, dest, metric)
+    log(f"report: {len(runs)} runs, {len(cells)} cells -> {dest}")
+    return {"rows": rows, "figures": figures, "codes": codes}
+
+
+def _fmt(x: float | None) -> str:
+    return "n/a" if x is None else f"{x:.3g}"
+
+
+def _write_tables(rows: list[dict[str, Any]], dest: Path) -> None:
+    import csv
+
+    keys = ["env", "scenario", "algo", "runs", "iqm", "low", "high", "terminated", "best_classical", "poi", "poi_low",
+            "poi_high", "parity_steps", "parity_seconds", "parity_runs"]
+    with open(dest / "comparison.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+    lines = ["| env | scenario | algo | runs | IQM [95% CI] | terminated | P(improve over best classical) [95% CI] "
+             "| steps to parity | seconds to parity |", "|---|---|---|---:|---|---:|---|---:|---:|"]
+    for r in rows:
+        poi = f"{r['poi']:.2f} [{r['poi_low']:.2f}, {r['poi_high']:.2f}]" if "poi" in r else ""
+        steps = "" if "parity_runs" not in r else (_fmt(r["parity_steps"]) if r["parity_steps"] is not None
+                                                   else f"not reached ({r['parity_runs']})")
+        secs = "" if "parity_runs" not in r else (_fmt(r["parity_seconds"]) if r["parity_seconds"] is not None
+                                                  else "not reached")
+        best = " (best)" if r["algo"] == r["best_classical"] else ""
+        lines.append(f"| {r['env']} | {r['scenario']} | {r['algo']}{best} | {r['runs']} | {_fmt(r['iqm'])} "
+                     f"[{_fmt(r['low'])}, {_fmt(r['high'])}] | {r['terminated']:.2f} | {poi} | {steps} | {secs} |")
+    (dest / "comparison.md").write_text("\n".join(lines) + "\n")
+
+
+def _figures(cells: dict[tuple[str, str], Cell], dest: Path, metric: str) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vnhc_gym import stats
+
+    files = []
+    envs = sorted({env for env, _ in cells})
+    for env in envs:
+        scen = sorted(s for e, s in cells if e == env)
+        fig, axes = plt.subplots(1, len(scen), figsize=(3.2 * len(scen), 3.0), squeeze=False)
+        for ax, scenario in zip(axes[0], scen, strict=True):
+            cell = cells[(env, scenario)]
+            for algo, rs in sorted(cell.runs.items()):
+                if algo in LEARNED_ALGOS:
+                    curves = [r["curve"] for r in rs if r.get("curve")]
+                    if not curves:
+                        continue
+                    n = min(len(c) for c in curves)
+                    steps = np.array([c[i]["steps"] for i in range(n) for c in curves[:1]])
+                    vals = np.median(np.array([[c[i][metric] for i in range(n)] for c in curves]), axis=0)
+                    ax.plot(steps, vals, label=algo)
+                else:
+                    ax.axhline(rs[0]["validation_score"], ls="--", lw=1, label=algo)
+            ax.set_yscale("log")
+            ax.set_title(scenario, fontsize=9)
+            ax.set_xlabel("env steps")
+        axes[0][0].set_ylabel(f"validation IQM {metric}")
+        axes[0][-1].legend(fontsize=6)
+        fig.tight_layout()
+        path = dest / f"learning_curves_{env}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        files.append(str(path))
+    # Performance profile: each run's test IQM over the k = 5 law's test IQM in its cell.
+    ratios: dict[str, list[float]] = {}
+    for cell in cells.values():
+        law = cell.runs.get("law")
+        if not law:
+            continue
+        ref = stats.iqm(np.asarray(law[0]["test"]["metrics"][metric]))
+        for algo, rs in cell.runs.items():
+            for r in rs:
+                ratios.setdefault(algo, []).append(stats.iqm(np.asarray(r["test"]["metrics"][metric])) / ref)
+    if ratios:
+        taus = np.logspace(-2, 3, 101)
+        fig, ax = plt.subplots(figsize=(5, 3.5))
+        for algo, vals in sorted(ratios.items()):
+            v = np.asarray(vals)
+            ax.plot(taus, [(v <= t).mean() for t in taus], label=algo)
+        ax.set_xscale("log")
+        ax.set_xlabel(f"{metric} / the k = 5 law's (per cell)")
+        ax.set_ylabel("fraction of runs at or below")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        path = dest / "performance_profile.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        files.append(str(path))
+    return files
+
+
+# --------------------------------------------------------------------------- command line
+def add_arguments(parser: Any) -> None:
+    """The options of ``vnhc-gym sweep``."""
+    parser.add_argument("--config", help="a YAML file with any of the options below (command-line values win)")
+    parser.add_argument("--envs", nargs="+", help="tasks or env ids (default: flocking usv)")
+    parser.add_argument("--scenarios", nargs="+", help="scenarios (default: nominal)")
+    parser.add_argument("--algos", nargs="+", help=f"from {list(LEARNED_ALGOS + CLASSICAL_ALGOS)} (default: law ppo)")
+    parser.add_argument("--seeds", nargs="+", type=int, help="training seeds (default: 0)")
+    parser.add_argument("-n", "--n-timesteps", type=int, help="training budget per learned run (default: 1e6)")
+    parser.add_argument("--out", help="output folder (default: runs/sweep); on a cluster, shared storage")
+    parser.add_argument("--executor", choices=["local", "ray"], help="local processes or Ray (default: ray if "
+                        "installed, else local)")
+    parser.add_argument("--address", help="Ray cluster address (default: $RAY_ADDRESS, else a local instance)")
+    parser.add_argument("--jobs", type=int, help="local executor: parallel runs (default: 1)")
+    parser.add_argument("--threads", type=int, help="torch threads per run (default: 1)")
+    parser.add_argument("--test-episodes", type=int, help="held-out test episodes per run (default: 20)")
+    parser.add_argument("--report", metavar="DIR", help="only build the report of the runs in DIR")
+
+
+def _options(args: Any) -> dict[str, Any]:
+    opts: dict[str, Any] = {"envs": ["flocking", "usv"], "scenarios": ["nominal"], "algos": ["law", "ppo"],
+                            "seeds": [0], "n_timesteps": 1_000_000, "out": "runs/sweep", "executor": None,
+                            "address": None, "jobs": 1, "threads": 1, "test_episodes": 20, "seeds_by_scenario": None}
+    if args.config:
+        import yaml
+
+        with open(args.config) as fh:
+            data = yaml.safe_load(fh) or {}
+        unknown = sorted(set(data) - set(opts))
+        if unknown:
+            raise ValueError(f"unknown keys {unknown} in {args.config}; valid: {sorted(opts)}")
+        opts.update(data)
+    for key in opts:
+        value = getattr(args, key, None)
+        if value is not None:
+            opts[key] = value
+    if opts["executor"] is None:
+        try:
+            import ray  # noqa: F401
+
+            opts["executor"] = "ray"
+        except ImportError:
+            opts["executor"] = "local"
+    return opts
+
+
+def run(args: Any) -> int:
+    """``vnhc-gym sweep``: run the grid, then build its report."""
+    if args.report:
+        report(args.report)
+        return 0
+    o = _options(args)
+    specs = grid(o["envs"], o["scenarios"], o["algos"], o["seeds"], int(o["n_timesteps"]),
+                 test_episodes=int(o["test_episodes"]), seeds_by_scenario=o["seeds_by_scenario"])
+    result = run_sweep(specs, o["out"], executor=o["executor"], jobs=int(o["jobs"]), threads=int(o["threads"]),
+                       address=o["address"])
+    report(o["out"])
+    if result["failed"]:
+        print(f"sweep: {len(result['failed'])} runs failed (tracebacks in {o['out']}/runs/*.error):")
+        for stem in result["failed"]:
+            print(f"  {stem}")
+        return 1
+    return 0
