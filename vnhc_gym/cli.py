@@ -1,4 +1,4 @@
-"""The ``vnhc-gym`` console command: ``reproduce``, ``benchmark``, ``train``."""
+"""The ``vnhc-gym`` console command: ``benchmark``, ``train``, ``sweep``, ``reproduce``."""
 
 from __future__ import annotations
 
@@ -9,9 +9,10 @@ from collections.abc import Sequence
 
 # subcommand -> (module, help); each module exposes add_arguments(parser) and run(args).
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "reproduce": ("vnhc_gym.paper", "Regenerate the paper's Section IV figures."),
     "benchmark": ("vnhc_gym.benchmark", "Evaluate baselines (and shipped agents) on every env and scenario."),
-    "train": ("vnhc_gym.train", "Train PPO / residual PPO / SAC agents."),
+    "train": ("vnhc_gym.training.cli", "Train one agent (PPO, residual PPO, recurrent PPO)."),
+    "sweep": ("vnhc_gym.sweep", "Run a grid of training and evaluation runs (locally or on Ray) and report."),
+    "reproduce": ("vnhc_gym.paper", "Regenerate the figures of the original paper's Section IV."),
 }
 
 
@@ -22,7 +23,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     args_in = list(sys.argv[1:] if argv is None else argv)
     chosen = next((a for a in args_in if not a.startswith("-")), None)
+    from vnhc_gym import __version__
+
     parser = argparse.ArgumentParser(prog="vnhc-gym", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"vnhc-gym {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     for name, (module_name, help_text) in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)

@@ -42,7 +42,7 @@ Array = NDArray[np.float64]
 QUICK_FRACTION = 0.02  #: share of every duration simulated with ``quick=True``
 MAX_RECORDS = 5000  #: states kept per run (``record_every`` is chosen from it)
 PRINTED_LAW_DURATION = 20.0  #: seconds simulated for the printed-law comparison
-PRINTED_LAW_OFFSET = 0.3  #: sideways velocity offset added to the paper's start (NOTES.md erratum 2)
+PRINTED_LAW_OFFSET = 0.3  #: sideways velocity offset added to the paper's start (the docs' errata: the USV law)
 USV_CASES = ("paper-northeast", "paper-anticyclone")
 
 #: Every file :func:`reproduce` writes, in order.
@@ -214,7 +214,7 @@ def _usv(out: Path, case: str, quick: bool) -> list[Path]:
 def _printed_usv_law(model: ConstrainedSystem, state: Array, params: Array) -> Array:
     """The USV control law exactly as printed in the paper's Section IV-B -- which is WRONG.
 
-    This is the paper's erratum reproduced on purpose (NOTES.md, USV erratum 2), only to show
+    This is the paper's erratum reproduced on purpose (the docs' errata: the USV law), only to show
     that it does not stabilise the constraint.  Never use it as a controller: the correct law is
     ``model.control`` (``u* = -m [k phi + thetad (xd cos + yd sin)]``).  Batched over rows of
     ``state``; ``W = m dV/dt`` with ``V1 = s^2 C1 - s c C2``, ``V2 = -s c C1 + c^2 C2``::
@@ -256,7 +256,7 @@ def off_manifold_state(case: str, offset: float = PRINTED_LAW_OFFSET) -> Array:
     """The paper's start for ``case`` with ``offset`` added to the sideways velocity ``(sin, -cos) . (xd, yd)``.
 
     ``phi`` is affine in that velocity with slope 1, so ``phi`` grows by exactly ``offset``
-    (north-east: -0.2 -> 0.1; anticyclone: 0 -> 0.3).  This is the start of NOTES.md erratum 2.
+    (north-east: -0.2 -> 0.1; anticyclone: 0 -> 0.3).  This is the start of the USV-law erratum (see the docs' errata page).
     """
     s = USV_PRESETS[case].state()
     th = s[2]

@@ -203,8 +203,8 @@ def run_sweep(specs: Iterable[RunSpec], out: str | Path, *, executor: str = "loc
         for fut in as_completed(futures):
             stem, err = fut.result()
             result["failed" if err else "done"].append(stem)
-            _progress(len(result["done"]), len(result["failed"]), len(todo) - len(result["done"]) - len(result["failed"]),
-                      len(todo), t0, log)
+            finished = len(result["done"]) + len(result["failed"])
+            _progress(len(result["done"]), len(result["failed"]), min(jobs, len(todo) - finished), len(todo), t0, log)
     return result
 
 

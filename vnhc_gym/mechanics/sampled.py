@@ -4,7 +4,7 @@ The law of Theorem 2 makes ``d phi/dt = -K phi`` when it is re-evaluated continu
 RL environment (and any digital controller) instead holds one control value over a control
 period ``dt``; held, ``u*`` no longer gives ``phi(t + dt) = exp(-K dt) phi(t)`` because the
 drift changes inside the period, and ``phi`` levels off at a small but nonzero value (see
-NOTES.md, "Sampled-data fact").
+the docs' math page, "the sampled-data fact").
 
 :func:`sampled_control` chooses the held control so that the *discrete* closed loop is the
 exact discretisation of the continuous one,

@@ -19,7 +19,7 @@ is the current's component normal to the heading.  The virtual affine constraint
 i.e. the boat's velocity relative to the water has no sideways component.  ``C = 1/m``
 is never singular.  The law derived from Theorem 2 is
 ``u* = -m [k phi + thetad (xd cos theta + yd sin theta)]``: the current terms cancel in
-``G(phi)`` (NOTES.md; the paper's printed law is wrong).
+``G(phi)`` (the paper's printed law is wrong; see the docs' errata page).
 """
 
 from __future__ import annotations

@@ -133,7 +133,7 @@ def load_agent(path_or_name: str | Path, env: Any = None) -> AgentPolicy:
     elif p.suffix != ".zip":
         p = p.with_suffix(".zip")
     if not p.exists():
-        raise FileNotFoundError(f"no agent {path_or_name!r}: not a file, and not one of the shipped agents {list_zoo()}")
+        raise FileNotFoundError(f"no agent {path_or_name!r}: not a file, nor one of the shipped agents {list_zoo()}")
     if p.resolve().parent != ZOO_DIR.resolve():
         warnings.warn(f"loading {p}: SB3 model files contain pickles; load only files you trust",
                       UntrustedFileWarning, stacklevel=2)

@@ -25,6 +25,7 @@ import hashlib
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -151,11 +152,11 @@ def _bound(agent: AgentPolicy, env_id: str, scenario: str) -> AgentPolicy:
     return agent.bind(gym.make(env_id, scenario=scenario))
 
 
-def train(cfg: TrainConfig | None = None, **kwargs: Any) -> dict[str, Any]:
+def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = None, **kwargs: Any) -> dict[str, Any]:
     """Train one agent (see the module docstring) and return its sidecar.
 
     ``train(algo="ppo", env="usv", n_timesteps=200_000)`` works too (keyword arguments are
-    :class:`TrainConfig` fields).
+    :class:`TrainConfig` fields).  ``log`` gets one line per validation.
     """
     import torch
 
@@ -227,6 +228,9 @@ def train(cfg: TrainConfig | None = None, **kwargs: Any) -> dict[str, Any]:
                  "mean_abs_phi": s["mean_abs_phi"].point, "mean_abs_phi_sf": s["mean_abs_phi_sf"].point,
                  "return": s["return"].point, "terminated": s["terminated"].point}
         curve.append(point)
+        if log is not None:
+            log(f"{stem}: {point['steps']:>9d} steps, {point['wall']:6.0f} s: validation IQM |phi~| "
+                f"{point['mean_abs_phi_sf']:.3g}")
         if point["mean_abs_phi_sf"] < best["score"]:
             best["score"] = point["mean_abs_phi_sf"]
             model.save(out_dir / f"{stem}.zip")
@@ -257,7 +261,8 @@ def train(cfg: TrainConfig | None = None, **kwargs: Any) -> dict[str, Any]:
     test = evaluate(agent, env_id, cfg.scenario, n_episodes=cfg.test_episodes, seed=TEST_SEED)
     meta.update({"curve": curve, "train_wall": train_wall, "eval_wall": t_eval,
                  "steps_per_second": model.num_timesteps / max(train_wall, 1e-9),
-                 "test": {k: v for k, v in test.to_dict().items() if k in ("metrics", "summary", "seed", "n_episodes")}})
+                 "test": {k: v for k, v in test.to_dict().items()
+                          if k in ("metrics", "summary", "seed", "n_episodes")}})
     (out_dir / f"{stem}.json").write_text(json.dumps(_jsonable(meta), indent=1))
     venv.close()
     return meta

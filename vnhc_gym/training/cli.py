@@ -1,0 +1,60 @@
+"""``vnhc-gym train``: one training run from the command line (see :mod:`vnhc_gym.training.run`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import fields
+
+from vnhc_gym.training.run import ALGOS, TrainConfig
+
+__all__ = ["add_arguments", "run"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from vnhc_gym.envs.config import SCENARIOS
+
+    d = TrainConfig()
+    parser.add_argument("--algo", default=d.algo, choices=ALGOS, help=f"(default {d.algo})")
+    parser.add_argument("--env", default=d.env, help=f"a task name or env id (default {d.env}, the latest version)")
+    parser.add_argument("--scenario", default=d.scenario, choices=list(SCENARIOS), help=f"(default {d.scenario})")
+    parser.add_argument("--seed", type=int, default=d.seed, help=f"(default {d.seed})")
+    parser.add_argument("-n", "--n-timesteps", type=int, default=None,
+                        help="training budget (default: the hyperparameter file's)")
+    parser.add_argument("--out", default=d.out, help=f"output folder (default {d.out})")
+    parser.add_argument("--threads", type=int, default=d.threads, help=f"torch threads (default {d.threads})")
+    parser.add_argument("--hyperparams", default=None, help="another RL Zoo file for the algorithm")
+    parser.add_argument("-params", "--params", nargs="*", default=[], metavar="KEY:VALUE",
+                        help="hyperparameter overrides, RL Zoo style (e.g. n_envs:64 learning_rate:1e-4)")
+    parser.add_argument("--eval-points", type=int, default=d.eval_points, help="validation evaluations over the run")
+    parser.add_argument("--test-episodes", type=int, default=d.test_episodes)
+    parser.add_argument("--progress-bar", action="store_true", help="show SB3's progress bar")
+
+
+def _overrides(items: list[str]) -> dict[str, object]:
+    from vnhc_gym.training.hyperparams import parse_literal
+
+    out: dict[str, object] = {}
+    for item in items:
+        key, sep, text = item.partition(":")
+        if not sep or not key:
+            raise ValueError(f"--params takes KEY:VALUE items, got {item!r}")
+        try:
+            out[key] = parse_literal(text)
+        except ValueError:
+            out[key] = text  # a plain string such as lin_3e-4
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from vnhc_gym.training.run import train
+
+    names = {f.name for f in fields(TrainConfig)}
+    cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in names and k != "overrides"},
+                      overrides=_overrides(args.params))
+    meta = train(cfg, log=print)
+    test = meta["test"]["summary"]
+    print(json.dumps({"model": f"{cfg.out}/{meta['name']}.zip", "steps": meta["n_timesteps"],
+                      "steps_per_second": round(meta["steps_per_second"]),
+                      "test_mean_abs_phi_sf_iqm": test["mean_abs_phi_sf"]}, indent=1))
+    return 0
