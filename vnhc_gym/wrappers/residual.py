@@ -158,7 +158,30 @@ class ResidualVectorAction(VectorWrapper):
         self._pending = done & ~self._same_step
         info["base_action"] = base
         info["residual_action"] = residual.astype(self._dtype)
+        if self.observe_base and "final_obs" in info:
+            self._observe_final(info)
         return self._observe(obs, starts.copy()), reward, terminated, truncated, info
+
+    def _observe_final(self, info: dict[str, Any]) -> None:
+        """The last observations of finished episodes (``SAME_STEP``), with a base action appended.
+
+        They only serve to bootstrap the value at a time limit, so the base action there is the
+        plain law's, which keeps no state: asking a stateful base would advance its estimate of the
+        new episode.
+        """
+        from vnhc_gym.baselines import GeometricController
+
+        rows = np.flatnonzero(info["_final_obs"])
+        if rows.size == 0:
+            return
+        law = self.__dict__.setdefault("_final_law", GeometricController(self.env, gain=getattr(self.base, "gain",
+                                                                                              DEFAULT_GAIN)))
+        obs = np.stack([info["final_obs"][i] for i in rows])
+        a, _ = law.predict(obs)
+        final = info["final_obs"].copy()
+        for j, i in enumerate(rows.tolist()):
+            final[i] = np.concatenate([obs[j], np.asarray(a[j], dtype=self._dtype)]).astype(obs.dtype)
+        info["final_obs"] = final
 
 
 class ResidualPolicy:
