@@ -256,7 +256,7 @@ def off_manifold_state(case: str, offset: float = PRINTED_LAW_OFFSET) -> Array:
     """The paper's start for ``case`` with ``offset`` added to the sideways velocity ``(sin, -cos) . (xd, yd)``.
 
     ``phi`` is affine in that velocity with slope 1, so ``phi`` grows by exactly ``offset``
-    (north-east: -0.2 -> 0.1; anticyclone: 0 -> 0.3).  This is the start of the USV-law erratum (see the docs' errata page).
+    (north-east: -0.2 -> 0.1; anticyclone: 0 -> 0.3): the start of the USV-law erratum (the docs' errata page).
     """
     s = USV_PRESETS[case].state()
     th = s[2]

@@ -94,3 +94,4 @@ def task_of_env_id(env: str) -> TaskEntry:
 
 register_task("flocking", "FlockingAlign", "vnhc_gym.tasks.flocking")
 register_task("usv", "USVStream", "vnhc_gym.tasks.usv")
+register_task("sled", "SledCruise", "vnhc_gym.tasks.sled")
