@@ -15,7 +15,16 @@ from typing import Any
 
 from gymnasium.envs.registration import register, registry
 
-__all__ = ["TASKS", "TaskEntry", "VERSIONS", "env_id", "env_ids", "get_task", "register_task", "task_of_env_id"]
+__all__ = ["TASKS", "Task", "TaskEntry", "VERSIONS", "env_id", "env_ids", "get_task", "register_task",
+           "task_of_env_id"]
+
+
+def __getattr__(name: str) -> Any:  # Task imports numba: only when a task author asks for it
+    if name == "Task":
+        from vnhc_gym.tasks.base import Task
+
+        return Task
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 #: Keyword arguments each version adds to the environment's (latest) defaults: ``-v0`` restores the
 #: raw ``-|phi|`` reward of the original benchmark.

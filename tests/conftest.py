@@ -1,0 +1,104 @@
+"""Shared fixtures of the environment tests: the registered ids, scenarios, exact comparisons.
+
+Every environment list comes from the task registry (:func:`vnhc_gym.tasks.env_ids`), so a task
+added to :mod:`vnhc_gym.tasks` is covered by every parametrised test without new test code.
+"""
+
+from __future__ import annotations
+
+import os
+
+# Rendering must work headless; SDL reads these when pygame first initialises a display or audio.
+os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+
+from collections.abc import Callable, Iterator  # noqa: E402
+from typing import Any  # noqa: E402
+
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from vnhc_gym.envs.config import SCENARIOS  # noqa: E402
+from vnhc_gym.tasks import env_ids  # noqa: E402
+
+
+def short_id(env_id: str) -> str:
+    """``"vnhc_gym/USVStream-v1"`` -> ``"USVStream-v1"`` (test ids)."""
+    return env_id.removeprefix("vnhc_gym/")
+
+
+@pytest.fixture(params=env_ids("v1"), ids=short_id)
+def v1_id(request: pytest.FixtureRequest) -> str:
+    """Every registered ``-v1`` id (bounded reward, the default)."""
+    return request.param
+
+
+@pytest.fixture(params=env_ids("v0"), ids=short_id)
+def v0_id(request: pytest.FixtureRequest) -> str:
+    """Every registered ``-v0`` id (raw reward)."""
+    return request.param
+
+
+@pytest.fixture(params=env_ids(None), ids=short_id)
+def any_id(request: pytest.FixtureRequest) -> str:
+    """Every registered id, of every version."""
+    return request.param
+
+
+@pytest.fixture(params=sorted(SCENARIOS))
+def scenario(request: pytest.FixtureRequest) -> str:
+    """Every scenario of :data:`vnhc_gym.envs.config.SCENARIOS`."""
+    return request.param
+
+
+def _assert_same(a: Any, b: Any, path: str = "") -> None:
+    """``a`` and ``b`` are the same to the last bit: same container structure, array dtypes and
+    shapes, equal bytes (so NaN payloads and the sign of zero count), equal Python scalars."""
+    where = path or "value"
+    if isinstance(a, dict):
+        assert isinstance(b, dict), f"{where}: dict vs {type(b).__name__}"
+        assert set(a) == set(b), f"{where}: keys {sorted(a)} vs {sorted(b)}"
+        for key in a:
+            _assert_same(a[key], b[key], f"{path}[{key!r}]")
+    elif isinstance(a, list | tuple):
+        assert type(a) is type(b) and len(a) == len(b), f"{where}: {type(a).__name__}[{len(a)}] vs {b!r}"
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _assert_same(x, y, f"{path}[{i}]")
+    elif isinstance(a, np.ndarray):
+        assert isinstance(b, np.ndarray), f"{where}: ndarray vs {type(b).__name__}"
+        assert a.dtype == b.dtype and a.shape == b.shape, f"{where}: {a.dtype}{a.shape} vs {b.dtype}{b.shape}"
+        if a.dtype == object:
+            for i, (x, y) in enumerate(zip(a.ravel(), b.ravel(), strict=True)):
+                _assert_same(x, y, f"{path}[{i}]")
+        else:
+            assert a.tobytes() == b.tobytes(), f"{where}: {a!r} vs {b!r}"
+    else:
+        assert type(a) is type(b), f"{where}: {type(a).__name__} vs {type(b).__name__}"
+        if a is None or isinstance(a, str | bool | int):
+            assert a == b, f"{where}: {a!r} vs {b!r}"
+        else:
+            assert np.asarray(a).tobytes() == np.asarray(b).tobytes(), f"{where}: {a!r} vs {b!r}"
+
+
+@pytest.fixture(scope="session")
+def assert_same() -> Callable[[Any, Any], None]:
+    """``assert_same(a, b)``: nested results (step tuples, infos, ...) equal bit for bit."""
+    return _assert_same
+
+
+@pytest.fixture(scope="module")
+def env_cache() -> Iterator[Callable[..., gym.Env]]:
+    """``env_cache(env_id, **kwargs)``: one ``gym.make`` environment per (id, arguments), shared
+    by the tests of a module (reset it with a seed before use; do not change its settings)."""
+    made: dict[tuple[str, str], gym.Env] = {}
+
+    def get(env_id: str, **kwargs: Any) -> gym.Env:
+        key = (env_id, repr(sorted(kwargs.items())))
+        if key not in made:
+            made[key] = gym.make(env_id, **kwargs)
+        return made[key]
+
+    yield get
+    for env in made.values():
+        env.close()
