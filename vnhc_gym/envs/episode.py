@@ -155,7 +155,8 @@ def _mean_abs(x: np.ndarray) -> float:
 @njit(cache=True)
 def finish_row(r: int, buf: Buffers, cfg: StepConfig) -> None:
     """After the task's ``observe`` of row ``r``: step count, observation noise, ``|phi|``, reward,
-    and the float32 observation."""
+    and the float32 observation (kept at its last finite value, with ``STATUS_NONFINITE``, if the new
+    one is not finite)."""
     buf.steps[r] += 1
     if cfg.obs_noise > 0:
         _add_noise(r, buf, cfg)
@@ -171,6 +172,14 @@ def finish_row(r: int, buf: Buffers, cfg: StepConfig) -> None:
     for b in range(buf.action.shape[1]):
         cost += buf.action[r, b] * buf.action[r, b]
     cost = cfg.action_cost * cost / buf.action.shape[1]
+    # An observation that is not finite (a state beyond what the task can observe) ends the episode
+    # like a non-finite state; the previous observation stays (obs32 is not overwritten below).
+    obs_finite = True
+    for j in range(buf.obs.shape[1]):
+        if not abs(buf.obs[r, j]) < np.inf:
+            obs_finite = False
+    if not obs_finite:
+        buf.status[r] = STATUS_NONFINITE
     nonfinite = buf.status[r] == STATUS_NONFINITE
     if cfg.bounded:
         rew = math.exp(-buf.abs_phi_sf[r] / cfg.reward_sigma) - cost
@@ -182,8 +191,9 @@ def finish_row(r: int, buf: Buffers, cfg: StepConfig) -> None:
         if nonfinite or not rew == rew:
             rew = -cfg.reward_clip
         buf.reward[r] = min(max(rew, -cfg.reward_clip), 0.0)
-    for j in range(buf.obs.shape[1]):
-        buf.obs32[r, j] = buf.obs[r, j]
+    if obs_finite:
+        for j in range(buf.obs.shape[1]):
+            buf.obs32[r, j] = buf.obs[r, j]
 
 
 @njit(cache=True)

@@ -26,7 +26,7 @@ is steered only through the torque, by way of the offset mass, and the law needs
 
 from __future__ import annotations
 
-from functools import cache, partial
+from functools import cache
 from typing import TYPE_CHECKING
 
 from vnhc_gym.mechanics import ConstrainedSystem

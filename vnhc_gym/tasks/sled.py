@@ -15,6 +15,7 @@ from vnhc_gym.envs.episode import STATUS_NONFINITE, STATUS_OK, TASK_STATUS, Buff
 from vnhc_gym.envs.vector import ConstraintVectorEnv
 from vnhc_gym.kernels import draw_mismatch, psincos, sign, uniform_ab
 from vnhc_gym.mechanics import FLAG_NONFINITE
+from vnhc_gym.mechanics.kernels import SINCOS_MAX_ARG
 from vnhc_gym.systems.sled import make_sled
 from vnhc_gym.tasks.base import Task
 
@@ -76,6 +77,8 @@ def observe(r: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
         buf.status[r] = STATUS_FAST
     elif abs(S[5]) > args.max_rate:
         buf.status[r] = STATUS_SPIN
+    elif not abs(S[2]) <= SINCOS_MAX_ARG:  # a heading beyond the inline sine's range: the run blew up
+        buf.status[r] = STATUS_NONFINITE
     else:
         buf.status[r] = STATUS_OK
     out[0] = forward / VEL_SCALE
@@ -215,7 +218,11 @@ class SledCruiseEnv(ConstraintEnv):
     | ``max_speed``     | 10.0      | termination speed (m/s)                        |
     | ``max_turn_rate`` | 10.0      | termination turn rate (rad/s)                  |
     | ``force_bound``   | 120 N, 40 N m | one number sets both bounds                |
-    | ``dt``, ``substeps``, ``reward``, ``reward_sigma`` (0.1), ``phi_scale``, ``reward_clip``, ``action_cost``, ``param_mismatch``, ``obs_noise``, ``impulse_prob``, ``impulse_scale`` (0.3), ``obs_clip`` | | as for every task |
+    | ``reward_sigma``  | 0.1       | width (m/s) of the bounded reward              |
+    | ``impulse_scale`` | 0.3       | std (m/s) of a velocity kick                   |
+
+    ``dt``, ``substeps``, ``reward``, ``phi_scale``, ``reward_clip``, ``action_cost``,
+    ``param_mismatch``, ``obs_noise``, ``impulse_prob`` and ``obs_clip`` are as for every task.
     | ``render_mode``   | None      | ``"rgb_array"`` or ``"human"``                 |
 
     ## Scenarios

@@ -15,6 +15,7 @@ from vnhc_gym.envs.episode import STATUS_NONFINITE, STATUS_OK, TASK_STATUS, Buff
 from vnhc_gym.envs.vector import ConstraintVectorEnv
 from vnhc_gym.kernels import draw_mismatch, normal_pair, psincos, sign, uniform_ab
 from vnhc_gym.mechanics import FLAG_NONFINITE, ConstrainedSystem
+from vnhc_gym.mechanics.kernels import SINCOS_MAX_ARG
 from vnhc_gym.systems.currents import CURRENTS, RANDOM_PARAM_NAMES, RANDOM_WEIGHTS, get_current
 from vnhc_gym.systems.usv import USV_PRESETS, make_usv
 from vnhc_gym.tasks.base import Task
@@ -100,6 +101,8 @@ def observe(r: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
         buf.status[r] = STATUS_OUT
     elif abs(S[5]) > args.max_rate:
         buf.status[r] = STATUS_SPIN
+    elif not abs(S[2]) <= SINCOS_MAX_ARG:  # a heading beyond the inline sine's range: the run blew up
+        buf.status[r] = STATUS_NONFINITE
     else:
         buf.status[r] = STATUS_OK
     s, c = psincos(S[2])
