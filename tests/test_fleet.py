@@ -28,8 +28,8 @@ from vnhc_gym.mechanics import (
 from vnhc_gym.mechanics.fleet import FleetLayout, check_autonomous
 from vnhc_gym.mechanics.kernels import solve_blocks
 from vnhc_gym.mechanics.model import FEEDBACK_MODES
-from vnhc_gym.systems import flocking_system, make_flocking, make_usv
 from vnhc_gym.systems import flocking as flocking_module
+from vnhc_gym.systems import flocking_system, make_flocking, make_usv
 from vnhc_gym.systems.flocking import MAX_AGENTS, flocking_layout
 
 
@@ -223,7 +223,7 @@ def test_layout_rejects_overlapping_own_entries() -> None:
     with pytest.raises(ValueError, match="exactly one copy"):
         _layout(state_map=sm)
     with pytest.raises(ValueError, match="exactly one copy"):  # x_4 etc. belong to nobody
-        _layout(n=4, state_map=flocking_layout(3).state_map)
+        _layout(n=7, state_map=flocking_layout(3).state_map)
 
 
 def test_layout_rejects_bad_shapes_and_indices() -> None:

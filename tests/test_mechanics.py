@@ -136,6 +136,66 @@ def test_open_loop_control_is_held() -> None:
     np.testing.assert_allclose(tr.u, np.broadcast_to(u, tr.u.shape))
 
 
+def _rk4_polynomial(z: np.ndarray) -> np.ndarray:
+    """RK4's stability polynomial of a matrix: one step of y' = A y is exactly y -> R(hA) y."""
+    eye = np.eye(z.shape[0])
+    return eye + z + z @ z / 2 + z @ z @ z / 6 + z @ z @ z @ z / 24
+
+
+def _rk4_input_polynomial(z: np.ndarray) -> np.ndarray:
+    """One RK4 step of y' = A y + c adds h P(hA) c, with P(z) = 1 + z/2 + z^2/6 + z^3/24."""
+    eye = np.eye(z.shape[0])
+    return eye + z / 2 + z @ z / 6 + z @ z @ z / 24
+
+
+def _oscillator_rk4(mode: str, s: np.ndarray, k_true: float, k_told: float, gain: float, dt: float, substeps: int,
+                    u_held: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    model = oscillator()
+    out, u_out, flags = np.empty_like(s), np.empty((len(s), 1)), np.empty(len(s), np.int64)
+    b = len(s)
+    model.kernels.rk4(s, np.full((b, 1), k_true), np.full((b, 1), k_told), np.full((b, 1), u_held),
+                      np.full((b, 1), gain), FEEDBACK_MODES[mode], np.full(1, -np.inf), np.full(1, np.inf), dt,
+                      substeps, 1e-10, out, u_out, flags)
+    return out, u_out[:, 0], flags
+
+
+def test_continuous_feedback_step_is_rk4_of_the_linear_closed_loop() -> None:
+    """The oscillator's law is linear, u* = -K xd + k_told x (with the told model), so the closed loop
+    y' = A y, A = [[0, 1], [k_told - k_true, -K]], is linear and an RK4 step is exactly R(h A).
+    The dynamics use the true k (P) and the law the told one (PL)."""
+    s = np.array([[0.7, -1.1], [-2.0, 0.4], [0.0, 1.0]])
+    k_true, k_told, gain, dt, substeps = 4.0, 2.5, 1.7, 0.1, 2
+    out, u_out, flags = _oscillator_rk4("continuous", s, k_true, k_told, gain, dt, substeps)
+    a = np.array([[0.0, 1.0], [k_told - k_true, -gain]])
+    step = _rk4_polynomial(dt / substeps * a)
+    mid = s @ step.T
+    np.testing.assert_allclose(out, mid @ step.T, rtol=1e-14, atol=1e-15)
+    # u_out: the mean over the substeps of the control at each substep's first stage.
+    law = np.array([k_told, -gain])
+    np.testing.assert_allclose(u_out, (s @ law + mid @ law) / 2, rtol=1e-14, atol=1e-15)
+    assert not flags.any()
+    # The told model matters: with k_told = k_true the closed loop is xd' = -K xd.
+    out_exact, _, _ = _oscillator_rk4("continuous", s, k_true, k_true, gain, dt, 1)
+    np.testing.assert_allclose(out_exact[:, 1], s[:, 1] * _rk4_polynomial(np.array([[-gain * dt]]))[0, 0],
+                               rtol=1e-14)
+    assert np.max(np.abs(out_exact - out)) > 1e-3
+
+
+@pytest.mark.parametrize("mode", ["sampled", "open"])
+def test_held_control_step_is_rk4_of_the_affine_system(mode: str) -> None:
+    """With the control held over the period (sampled: u*(start) + u; open: u) the system is
+    y' = B y + (0, u), B = [[0, 1], [-k_true, 0]]: one RK4 step is R(hB) y + h P(hB) (0, u)."""
+    s = np.array([[0.7, -1.1], [-2.0, 0.4]])
+    k_true, k_told, gain, dt, held = 4.0, 2.5, 1.7, 0.05, 0.3
+    out, u_out, flags = _oscillator_rk4(mode, s, k_true, k_told, gain, dt, 1, u_held=held)
+    u = held + (-gain * s[:, 1] + k_told * s[:, 0] if mode == "sampled" else 0.0)
+    z = dt * np.array([[0.0, 1.0], [-k_true, 0.0]])
+    expected = s @ _rk4_polynomial(z).T + dt * np.outer(u, _rk4_input_polynomial(z)[:, 1])
+    np.testing.assert_allclose(out, expected, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(u_out, u, rtol=1e-15)
+    assert not flags.any()
+
+
 # --------------------------------------------------------------------------- holonomic constraint (Remark 2)
 
 
