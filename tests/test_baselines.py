@@ -1,303 +1,445 @@
-"""Tests of vnhc_gym.baselines and vnhc_gym.mechanics.sampled_control.
+"""Tests of vnhc_gym.baselines: the geometric law (plain and sampled), the observer law, the adaptive
+law, the zero and random policies, and the tuning of the classical baselines.
 
-Expected values come from the core law (``ConstrainedSystem.control``) on states rebuilt in
-this file from the documented observation layouts, from the env's true state, or from the
-defining property of the sampled law (``phi`` after one period = ``exp(-k dt) phi``).
+Expected values come from facts that do not depend on the code under test: the closed-form laws
+of the env cards written out in numpy from the documented observation layouts, the defining
+property of the sampled-data law (``phi`` after one control period is ``exp(-k dt) phi``), the
+true state and parameters in ``info``, and the seed ranges of the evaluation protocol.
 """
 
 from __future__ import annotations
 
+import itertools
+from types import SimpleNamespace
+from typing import Any
+
 import gymnasium as gym
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 import vnhc_gym  # noqa: F401  (registers the environments)
-from vnhc_gym.baselines import GeometricController, RandomPolicy, ZeroPolicy
-from vnhc_gym.baselines import geometric as geo
-from vnhc_gym.envs import flocking_align, usv_stream
-from vnhc_gym.evaluation import evaluate
-from vnhc_gym.mechanics import sampled_control
-from vnhc_gym.systems import FLOCKING_PRESETS, make_flocking, make_usv
+import vnhc_gym.evaluation
+import vnhc_gym.evaluation.protocol
+from vnhc_gym.baselines import (
+    CLASSICAL,
+    DEFAULT_GAIN,
+    AdaptiveController,
+    GeometricController,
+    ObserverController,
+    RandomPolicy,
+    ZeroPolicy,
+    make_classical,
+    task_of,
+    tune,
+)
+from vnhc_gym.baselines.tuning import SELECTION_METRIC
+from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate
+from vnhc_gym.tasks import env_id, env_ids
 
-FLOCK = "vnhc_gym/FlockingAlign-v0"
-USV = "vnhc_gym/USVStream-v0"
-
-
-def _rollout_obs(env_id: str, n_steps: int = 60, seed: int = 0, **kw) -> tuple[list, list, gym.Env]:
-    """Observations and infos of a geometric-controlled rollout (plus the env)."""
-    env = gym.make(env_id, disable_env_checker=True, **kw)
-    pol = GeometricController(env)
-    obs, info = env.reset(seed=seed)
-    all_obs, infos = [obs], [info]
-    for _ in range(n_steps):
-        obs, _, term, trunc, info = env.step(pol.predict(obs)[0])
-        all_obs.append(obs)
-        infos.append(info)
-        if term or trunc:
-            break
-    return all_obs, infos, env
+ENVS = env_ids("v1")
+FLOCK = env_id("flocking")
+USV = env_id("usv")
 
 
-def test_observation_scales_match_env_modules() -> None:
-    assert geo.FLOCKING_LOG_SPEED_SCALE == flocking_align.LOG_SPEED_SCALE
-    assert geo.USV_VEL_SCALE == usv_stream.VEL_SCALE
-    assert geo.USV_RATE_SCALE == usv_stream.RATE_SCALE
-    assert geo.USV_OBS_DIM == usv_stream.USV_OBS_DIM
+def _short(e: str) -> str:
+    return e.removeprefix("vnhc_gym/")
 
 
-# --------------------------------------------------------------------------- the law from observations
+def _vec(env: str, n: int, **kwargs: Any) -> gym.vector.VectorEnv:
+    return gym.make_vec(env, num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
 
 
-def _flocking_state_from_obs(o: np.ndarray, n_agents: int = 4) -> np.ndarray:
-    """Independent rebuild from the documented layout: r_b, e, log(s)/5, phi/s^2."""
+def _diverse_batch(env: str, n: int = 16, steps: int = 3, **kwargs: Any) -> tuple[np.ndarray, dict, Any]:
+    """Observations and infos of ``n`` held-out episodes after a few random actions (not on the manifold)."""
+    venv = _vec(env, n, **kwargs)
+    obs, info = venv.reset(seed=TEST_SEED)
+    rng = np.random.default_rng(0)
+    for _ in range(steps):
+        a = rng.uniform(-0.3, 0.3, venv.action_space.shape).astype(np.float32)
+        obs, _, _, _, info = venv.step(a)
+    return obs, info, venv
+
+
+# --------------------------------------------------------------------------- the law beats no control
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_law_lowers_mean_phi_100_fold_against_no_control(env: str) -> None:
+    zero = evaluate(ZeroPolicy, env, "nominal", n_episodes=4, seed=TEST_SEED)
+    law = evaluate(GeometricController, env, "nominal", n_episodes=4, seed=TEST_SEED)
+    assert np.mean(zero.metrics["mean_abs_phi"]) >= 100 * np.mean(law.metrics["mean_abs_phi"])
+    assert not law.metrics["terminated"].any()
+
+
+# --------------------------------------------------------------------------- the closed-form laws
+def _flocking_law(o: np.ndarray, n_agents: int, m: np.ndarray, g: float, k: np.ndarray,
+                  consistent_phi: bool = False) -> np.ndarray:
+    """The card's law from the observation: ``u*_b = m_b [g (e_x - r_bx) - k s p_b] / (e_x - e_z)``,
+    ``s = exp(5 o[2(N-1)+2])``, ``p_b = o[2(N-1)+3+b]`` (or ``e_x r_bz - r_bx e_z`` recomputed)."""
+    o = o.astype(np.float64)
     nf = n_agents - 1
-    s = np.exp(5.0 * o[2 * nf + 2])
-    vel = np.empty((n_agents, 2))
-    vel[:nf] = s * o[: 2 * nf].reshape(nf, 2)
-    vel[nf] = s * o[2 * nf: 2 * nf + 2]
-    return np.concatenate([np.zeros(n_agents), np.zeros(n_agents), vel[:, 0], vel[:, 1]])
+    rx, rz = o[:, 0:2 * nf:2], o[:, 1:2 * nf:2]
+    ex, ez = o[:, 2 * nf:2 * nf + 1], o[:, 2 * nf + 1:2 * nf + 2]
+    s = np.exp(5.0 * o[:, 2 * nf + 2:2 * nf + 3])
+    p = ex * rz - rx * ez if consistent_phi else o[:, 2 * nf + 3:3 * nf + 3]
+    return m[None, :nf] * (g * (ex - rx) - k[None, :] * s * p) / (ex - ez)
 
 
-def test_flocking_law_equals_core_law_on_rebuilt_and_true_states() -> None:
-    obs_list, infos, env = _rollout_obs(FLOCK, 80)
-    ctrl = GeometricController(env, gain=1.0)
-    model = make_flocking(4)
-    nominal = env.unwrapped.task.nominal
-    obs = np.stack(obs_list).astype(np.float64)
-    # Make the observed phi/s^2 entries consistent (in float64) with the observed velocities, so
-    # the obs-based law and the core law on the rebuilt state see exactly the same state.
-    ex, ez = obs[:, 6:7], obs[:, 7:8]
-    obs[:, 9:12] = ex * obs[:, 1:6:2] - obs[:, 0:6:2] * ez
-    u_obs, singular = ctrl.force(obs)
-    assert not singular.any()
-    rebuilt = np.stack([_flocking_state_from_obs(o) for o in obs])
-    u_core = model.control(rebuilt, gains=1.0, params=nominal)
-    np.testing.assert_allclose(u_obs, u_core, rtol=1e-9, atol=1e-9 * np.abs(u_core).max())
-    u_obs32, _ = ctrl.force(np.stack(obs_list))
-    np.testing.assert_allclose(u_obs32, u_core, rtol=1e-4, atol=1e-4)
-    # Against the true (float64) state: equal up to the float32 rounding of the observation.
-    true = np.stack([i["state"] for i in infos])
-    u_true = model.control(true, gains=1.0, params=nominal)
-    np.testing.assert_allclose(u_obs, u_true, rtol=1e-4, atol=1e-4)
-    # The action is the saturated force.
-    a = ctrl.predict(obs_list[0])[0]
-    np.testing.assert_allclose(a, np.clip(u_core[0] / env.unwrapped.task.force_bound, -1, 1), rtol=1e-6)
+@pytest.mark.parametrize(("kwargs", "gain"), [
+    ({}, 5.0),
+    ({}, 1.7),
+    ({"n_agents": 5, "masses": [1.0, 2.5, 0.7, 4.0, 3.0], "g": 9.81}, [1.0, 2.0, 3.0, 0.5]),
+], ids=["default", "gain-1.7", "five-agents"])
+def test_flocking_law_is_the_closed_form(kwargs: dict, gain: Any) -> None:
+    obs, info, venv = _diverse_batch(FLOCK, **kwargs)
+    n = kwargs.get("n_agents", 4)
+    masses = np.broadcast_to(np.asarray(kwargs.get("masses", 2.0), dtype=float), (n,))
+    g = float(kwargs.get("g", 10.0))
+    k = np.broadcast_to(np.asarray(gain, dtype=float), (n - 1,))
+    ctrl = GeometricController(venv, gain=gain)
+    u, singular = ctrl.force(obs)
+    assert u.shape == (16, n - 1) and not singular.any()
+    # The float32 observation's phi entry is its velocities' phi up to rounding.
+    expected = _flocking_law(obs, n, masses, g, k)
+    np.testing.assert_allclose(u, expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())
+    # With the phi entries recomputed in float64 from the observed velocities, to rounding error.
+    exact = obs.astype(np.float64)
+    nf = n - 1
+    exact[:, 2 * nf + 3:] = exact[:, 2 * nf:2 * nf + 1] * exact[:, 1:2 * nf:2] \
+        - exact[:, 0:2 * nf:2] * exact[:, 2 * nf + 1:2 * nf + 2]
+    u_exact, _ = ctrl.force(exact)
+    np.testing.assert_allclose(u_exact, _flocking_law(obs, n, masses, g, k, consistent_phi=True), rtol=1e-10,
+                               atol=1e-10 * np.abs(expected).max())
+    # From the true state in info (x.., z.., xd.., zd..; leader last).
+    st = info["state"]
+    xd, zd = st[:, 2 * n:3 * n], st[:, 3 * n:]
+    phi = xd[:, -1:] * zd[:, :nf] - xd[:, :nf] * zd[:, -1:]
+    np.testing.assert_allclose(phi, info["phi"], rtol=1e-12, atol=1e-12)
+    u_true = masses[None, :nf] * (g * (xd[:, -1:] - xd[:, :nf]) - k * phi) / (xd[:, -1:] - zd[:, -1:])
+    np.testing.assert_allclose(u, u_true, rtol=1e-4, atol=1e-4 * np.abs(u_true).max())
+    # The action is the force over the bound, clipped, as float32.
+    a, state = ctrl.predict(obs)
+    assert state is None and a.dtype == np.float32
+    np.testing.assert_allclose(a, np.clip(expected / venv.unwrapped.task.force_bound, -1, 1), rtol=1e-5, atol=1e-6)
+    venv.close()
 
 
-def test_usv_law_equals_core_law_on_rebuilt_and_true_states() -> None:
-    obs_list, infos, env = _rollout_obs(USV, 80, seed=3)
-    task = env.unwrapped.task
-    ctrl = GeometricController(env, gain=2.0)
-    model = make_usv(task.current)
-    p_nom = task.params_nominal[0]  # this episode's nominal current (random field)
-    obs = np.stack(obs_list).astype(np.float64)
-    u_obs, _ = ctrl.force(obs)
-    domain = task.domain
-    rebuilt = np.stack([[o[7] * domain, o[8] * domain, np.arctan2(o[1], o[0]), 2 * o[2], 2 * o[3], 2 * o[4]]
-                        for o in obs])
-    u_core = model.control(rebuilt, gains=2.0, params=p_nom)
-    # The rebuilt position differs from the true one by float32 rounding, which moves C a little.
-    np.testing.assert_allclose(u_obs[:, 0], u_core[:, 0], rtol=1e-4, atol=1e-4)
-    true = np.stack([i["state"] for i in infos])
-    np.testing.assert_allclose(u_obs[:, 0], model.control(true, gains=2.0, params=p_nom)[:, 0], rtol=1e-4, atol=1e-4)
+def _usv_law(o: np.ndarray, m: float, k: float, phi_from_entry: bool = False) -> np.ndarray:
+    """The card's law ``u* = -m [k phi + thetad (xd cos + yd sin)]`` from the observation (velocities,
+    turn rate, current and phi are stored over 2)."""
+    o = o.astype(np.float64)
+    th = np.arctan2(o[:, 1], o[:, 0])
+    c, s = np.cos(th), np.sin(th)
+    xd, yd, thd = 2 * o[:, 2], 2 * o[:, 3], 2 * o[:, 4]
+    c1, c2 = 2 * o[:, 5], 2 * o[:, 6]
+    phi = 2 * o[:, 9] if phi_from_entry else s * xd - c * yd + c * c2 - s * c1
+    return -m * (k * phi + thd * (xd * c + yd * s))
 
 
-@pytest.mark.parametrize("env_id", [FLOCK, USV])
-def test_batched_predict_equals_row_by_row(env_id: str) -> None:
-    obs_list, _, env = _rollout_obs(env_id, 30)
-    rng = np.random.default_rng(1)
-    obs = np.stack(obs_list)
-    obs = np.concatenate([obs, obs + rng.normal(0, 0.05, obs.shape).astype(np.float32)])
+@pytest.mark.parametrize(("kwargs", "gain"), [({}, 5.0), ({"mass": 7.0, "inertia": 3.0}, 2.5),
+                                              ({"current": "anticyclone"}, 1.0)],
+                         ids=["default", "mass-7", "anticyclone"])
+def test_usv_law_is_the_closed_form(kwargs: dict, gain: float) -> None:
+    obs, info, venv = _diverse_batch(USV, **kwargs)
+    m = float(kwargs.get("mass", 10.0))
+    ctrl = GeometricController(venv, gain=gain)
+    u, singular = ctrl.force(obs)
+    assert u.shape == (16, 1) and not singular.any()
+    expected = _usv_law(obs, m, gain)
+    np.testing.assert_allclose(u[:, 0], expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
+    # phi from its own (float32) entry: the same up to rounding.
+    np.testing.assert_allclose(u[:, 0], _usv_law(obs, m, gain, phi_from_entry=True), rtol=1e-5,
+                               atol=1e-5 * np.abs(expected).max())
+    # From the true state (x, y, theta, xd, yd, thetad) and the true phi.
+    st = info["state"]
+    u_true = -m * (gain * info["phi"][:, 0] + st[:, 5] * (st[:, 3] * np.cos(st[:, 2]) + st[:, 4] * np.sin(st[:, 2])))
+    np.testing.assert_allclose(u[:, 0], u_true, rtol=1e-4, atol=1e-4 * np.abs(u_true).max())
+    venv.close()
+
+
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_sampled_variant_reaches_the_exponential_target_in_one_period(env: str) -> None:
+    """The sampled-data law holds the control that makes phi(t + dt) = exp(-k dt) phi(t) on the
+    nominal model; the plain held law misses that target by the zero-order-hold error."""
+    k = 5.0
+    rel_err = {}
     for variant in ("plain", "sampled"):
-        ctrl = GeometricController(env, variant=variant)
+        venv = _vec(env, 8)
+        ctrl = GeometricController(venv, gain=k, variant=variant)
+        assert ctrl.name == ("geometric" if variant == "plain" else "geometric-sampled")
+        obs, info = venv.reset(seed=TEST_SEED)
+        decay = np.exp(-k * venv.unwrapped.dt)
+        errs = []
+        for _ in range(20):
+            phi0 = info["phi"].copy()
+            a, _ = ctrl.predict(obs)
+            assert not ctrl.last_saturated.any() and not ctrl.last_singular.any()
+            obs, _, _, _, info = venv.step(a)
+            errs.append(np.abs(info["phi"] - decay * phi0).max() / np.abs(phi0).max())
+        rel_err[variant] = max(errs)
+        venv.close()
+    assert rel_err["sampled"] < 1e-3
+    assert rel_err["plain"] > 10 * rel_err["sampled"]
+
+
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_batched_predict_equals_row_by_row_and_single_env(env: str) -> None:
+    obs, _, venv = _diverse_batch(env, n=6)
+    single = gym.make(env)
+    for variant in ("plain", "sampled"):
+        ctrl = GeometricController(venv, variant=variant)
         batch, state = ctrl.predict(obs)
-        assert state is None
-        assert batch.dtype == np.float32 and batch.shape == (len(obs), env.action_space.shape[0])
+        assert state is None and batch.dtype == np.float32 and batch.shape == (6, venv.single_action_space.shape[0])
         assert np.all(np.abs(batch) <= 1)
         rows = np.stack([ctrl.predict(o)[0] for o in obs])
-        if variant == "plain":
-            np.testing.assert_array_equal(batch, rows)
-        else:
-            np.testing.assert_allclose(batch, rows, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(batch, rows, rtol=1e-6, atol=1e-7)
+        from_single = GeometricController(single, variant=variant)
+        np.testing.assert_array_equal(from_single.force_bound, ctrl.force_bound)
+        np.testing.assert_array_equal(from_single.predict(obs)[0], batch)
+        assert ctrl.n_rows == 6 + 6  # the batch, then six single rows
+    venv.close()
+    single.close()
 
 
-@settings(max_examples=60, deadline=None)
-@given(st.lists(st.floats(-3, 3, width=32), min_size=12, max_size=12), st.integers(1, 5))
-def test_plain_batch_property(values: list[float], n: int) -> None:
-    ctrl = GeometricController(system="flocking", nominal=[2, 2, 2, 2, 10.0], force_bound=250.0, dt=0.05)
-    o = np.asarray(values, dtype=np.float32)
-    batch = np.tile(o, (n, 1))
-    a_batch = ctrl.predict(batch)[0]
-    a_one = ctrl.predict(o)[0]
-    assert np.all(np.isfinite(a_batch)) and np.all(np.abs(a_batch) <= 1)
-    np.testing.assert_array_equal(a_batch, np.tile(a_one, (n, 1)))
+def test_singular_decoupling_gives_zero_action_and_is_reported() -> None:
+    """Flocking's C is singular when the leader moves along the diagonal (e_x == e_z)."""
+    env = gym.make(FLOCK)
+    good, _ = env.reset(seed=TEST_SEED)
+    bad = good.copy()
+    bad[6] = bad[7] = np.float32(np.sqrt(0.5))
+    for variant in ("plain", "sampled"):
+        ctrl = GeometricController(env, variant=variant)
+        a, _ = ctrl.predict(np.stack([bad, good]))
+        assert np.all(np.isfinite(a))
+        np.testing.assert_array_equal(a[0], 0.0)
+        assert np.any(a[1] != 0.0)
+        assert ctrl.last_singular.tolist() == [True, False]
+        assert ctrl.n_singular == 1
+    env.close()
 
 
-def test_singular_decoupling_gives_finite_action_and_is_reported() -> None:
-    ctrl = GeometricController(system="flocking", nominal=[2, 2, 2, 2, 10.0], force_bound=250.0, dt=0.05)
-    o = np.zeros(12, dtype=np.float32)
-    o[6] = o[7] = np.float32(np.sqrt(0.5))  # e_x == e_z: leader on the diagonal, C singular
-    o[:6] = 0.3
-    o[9:] = 0.1
-    good = o.copy()
-    good[6], good[7] = 0.6, -0.8
-    a, _ = ctrl.predict(np.stack([o, good]))
-    assert np.all(np.isfinite(a))
-    np.testing.assert_array_equal(a[0], 0.0)
-    assert ctrl.last_singular.tolist() == [True, False]
-    assert ctrl.n_singular == 1
-    sampled = GeometricController(system="flocking", nominal=[2, 2, 2, 2, 10.0], force_bound=250.0, dt=0.05,
-                                  variant="sampled")
-    a2, _ = sampled.predict(o)
-    assert np.all(np.isfinite(a2)) and sampled.last_singular.tolist() == [True]
+def test_saturation_is_clipped_and_counted() -> None:
+    env = gym.make(FLOCK, scenario="saturated")
+    obs, _ = env.reset(seed=TEST_SEED)
+    ctrl = GeometricController(env)
+    u, _ = ctrl.force(obs)
+    a, _ = ctrl.predict(obs)
+    ratio = u[0] / env.unwrapped.task.force_bound
+    assert np.any(np.abs(ratio) > 1)  # 12.5 N is far below what the law asks at the start
+    np.testing.assert_allclose(a, np.clip(ratio, -1, 1), rtol=1e-6)
+    assert ctrl.last_saturated.tolist() == [True] and ctrl.n_saturated == 1
+    env.close()
 
 
-def test_wrong_observation_shape_raises_value_error_naming_shape() -> None:
-    env = gym.make(USV, disable_env_checker=True)
-    for pol in (GeometricController(env), ZeroPolicy(env), RandomPolicy(env, 0)):
+def test_constructor_and_observation_checks() -> None:
+    env = gym.make(USV)
+    for pol in (GeometricController(env), ObserverController(env), AdaptiveController(env), ZeroPolicy(env),
+                RandomPolicy(env, seed=0)):
         with pytest.raises(ValueError, match=r"\(14,\)"):
             pol.predict(np.zeros(13))
         with pytest.raises(ValueError, match=r"\(n, 14\)"):
             pol.predict(np.zeros((2, 3, 14)))
-
-
-def test_explicit_construction_equals_env_construction() -> None:
-    obs_list, _, env = _rollout_obs(FLOCK, 10, scenario="saturated")
-    a = GeometricController(env)
-    b = GeometricController(system="flocking", nominal=env.unwrapped.task.nominal, force_bound=12.5, dt=0.05)
-    np.testing.assert_array_equal(a.predict(np.stack(obs_list))[0], b.predict(np.stack(obs_list))[0])
-    with pytest.raises(TypeError):
-        GeometricController()
-    with pytest.raises(TypeError, match="task"):
-        GeometricController(gym.make("Pendulum-v1"))
     with pytest.raises(ValueError, match="variant"):
         GeometricController(env, variant="exact")
+    with pytest.raises(ValueError, match="gain"):
+        GeometricController(env, gain=-1.0)
+    with pytest.raises(ValueError, match="gain"):
+        GeometricController(env, gain=[1.0, 2.0])  # the USV has one constraint component
+    with pytest.raises(ValueError, match="iters"):
+        GeometricController(env, iters=-1)
+    with pytest.raises(ValueError, match="alpha"):
+        ObserverController(env, alpha=0.0)
+    with pytest.raises(ValueError, match="prior"):
+        AdaptiveController(env, prior=-1.0)
+    with pytest.raises(TypeError, match="task"):
+        GeometricController(gym.make("Pendulum-v1"))
+    with pytest.raises(TypeError):
+        ZeroPolicy()
+    with pytest.raises(ValueError, match="episode_start"):
+        GeometricController(env).predict(np.zeros((2, 14)), episode_start=[True])
+    # A wrapper that changes the spaces is refused (the law reads the raw observation).
+    with pytest.raises(ValueError, match="spaces"):
+        GeometricController(gym.wrappers.FlattenObservation(gym.wrappers.FrameStackObservation(env, 2)))
+    assert task_of(gym.wrappers.ClipAction(env)) is env.unwrapped.task
+    env.close()
 
 
 def test_zero_and_random_policies() -> None:
-    env = gym.make(FLOCK, disable_env_checker=True)
+    env = gym.make(FLOCK)
     obs, _ = env.reset(seed=0)
-    a, _ = ZeroPolicy(env).predict(obs)
-    assert a.dtype == np.float32 and a.shape == (3,) and not a.any()
+    a, state = ZeroPolicy(env).predict(obs)
+    assert state is None and a.dtype == np.float32 and a.shape == (3,) and not a.any()
     r1 = RandomPolicy(env, seed=4).predict(np.stack([obs, obs]))[0]
     r2 = RandomPolicy(env, seed=4).predict(np.stack([obs, obs]))[0]
+    r3 = RandomPolicy(env, seed=5).predict(np.stack([obs, obs]))[0]
     assert r1.shape == (2, 3) and r1.dtype == np.float32 and np.all(np.abs(r1) <= 1)
     np.testing.assert_array_equal(r1, r2)
+    assert not np.array_equal(r1, r3)
+    assert ZeroPolicy(obs_dim=5, act_dim=2).predict(np.zeros(5))[0].shape == (2,)
+    env.close()
 
 
-# --------------------------------------------------------------------------- closed loop
-
-
-@pytest.mark.parametrize("env_id", [FLOCK, USV])
-def test_geometric_lowers_mean_phi_100_fold(env_id: str) -> None:
-    zero = evaluate(ZeroPolicy, env_id, n_episodes=4, seed=0)
-    # Mean |phi| over a 20 s episode is dominated by the initial transient phi(0) exp(-k t),
-    # whose mean is ~phi(0) / (20 k): with the paper's k = 1 the USV gains only ~20x (the
-    # flocking phi of the uncontrolled system grows with the leader's speed, so 100x holds
-    # already at k = 1).  The default gain (k = 5) gives >= 100x on both.
-    geo = evaluate(GeometricController, env_id, n_episodes=4, seed=0)
-    assert np.mean(zero.mean_abs_phi) >= 100 * np.mean(geo.mean_abs_phi)
-    geo1 = evaluate(lambda e: GeometricController(e, gain=1.0), env_id, n_episodes=4, seed=0)
-    if env_id == FLOCK:
-        assert np.all(zero.mean_abs_phi >= 100 * geo1.mean_abs_phi)
-    # After the transient (last half of the episode) it is far beyond 100x at k = 1.
-    half = geo1.phi_series.shape[1] // 2
-    assert np.nanmean(zero.phi_series[:, half:]) >= 1e4 * np.nanmean(geo1.phi_series[:, half:])
-    assert not geo1.terminated.any()
-
-
-def test_sampled_variant_beats_plain_at_coarse_dt_for_flocking() -> None:
-    kw = {"dt": 0.1, "substeps": 1}
-    made = {}
-
-    def factory(variant):
-        def make(env):
-            made[variant] = GeometricController(env, variant=variant)
-            return made[variant]
-        return make
-
-    plain = evaluate(factory("plain"), FLOCK, n_episodes=3, env_kwargs=kw)
-    sampled = evaluate(factory("sampled"), FLOCK, n_episodes=3, env_kwargs=kw)
-    half = plain.phi_series.shape[1] // 2
-    res_plain = np.mean(plain.phi_series[:, half:], axis=1)
-    res_sampled = np.mean(sampled.phi_series[:, half:], axis=1)
-    assert np.all(res_sampled < res_plain / 10)
-    assert made["sampled"].last_converged is not None and made["sampled"].last_converged.all()
-
-
-def test_sampled_variant_on_usv_is_finite_and_converges() -> None:
-    made = {}
-
-    def make(env):
-        made["c"] = GeometricController(env, variant="sampled")
-        return made["c"]
-
-    res = evaluate(make, USV, n_episodes=2, env_kwargs={"dt": 0.1}, max_time=6.0)
-    assert np.all(np.isfinite(res.mean_abs_phi))
-    assert np.all(res.final_abs_phi < 0.01 * res.initial_abs_phi)
-    assert made["c"].last_converged.all()
-
-
-# --------------------------------------------------------------------------- sampled_control (core)
-
-
-def test_sampled_control_hits_exponential_target_in_one_period() -> None:
-    model = make_flocking(4)
-    pr = FLOCKING_PRESETS["paper"]
-    s, p = pr.state(), pr.params()
-    for dt, k in ((0.1, 1.0), (0.05, 3.0)):
-        u, conv = sampled_control(model, s, p, dt, k)
-        assert conv is True and u.shape == (3,)
-        nxt, _, _ = model.step(s, dt, u=u, params=p)
-        np.testing.assert_allclose(model.phi(nxt, p), np.exp(-k * dt) * model.phi(s, p), rtol=1e-9, atol=1e-12)
-        # The plain held law misses the target (the zero-order-hold error).
-        nxt_plain, _, _ = model.step(s, dt, u=model.control(s, gains=k, params=p), params=p)
-        assert np.max(np.abs(model.phi(nxt_plain, p) - np.exp(-k * dt) * model.phi(s, p))) > 1e-5
-
-
-def test_sampled_control_batch_usv_and_phi_now() -> None:
-    model = make_usv("northeast")
+# --------------------------------------------------------------------------- the observer
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_observer_converges_on_a_noiseless_rollout(env: str) -> None:
+    """Started from a wrong first observation, the estimate's phi converges to the true phi (and,
+    where the controller's model is the environment's own, its velocities to the true ones)."""
+    n = 4
+    venv = _vec(env, n)
+    task = venv.unwrapped.task
+    ctrl = ObserverController(venv)
+    nq = ctrl.model.n
+    exact_model = task.controller_model() is task.model
+    obs, info = venv.reset(seed=TEST_SEED)
     rng = np.random.default_rng(0)
-    states = np.column_stack([rng.uniform(-3, 3, (6, 2)), rng.uniform(-3, 3, 6), rng.normal(0, 1, (6, 3))])
-    u, conv = sampled_control(model, states, None, 0.1, 2.0, substeps=2)
-    assert u.shape == (6, 1) and conv.shape == (6,) and conv.all()
-    nxt, _, _ = model.step(states, 0.1, u=u, substeps=2)
-    np.testing.assert_allclose(model.phi(nxt), np.exp(-0.2) * model.phi(states), rtol=1e-8, atol=1e-10)
-    # phi_now: only the increment of the model is used, so a biased model phi does not matter.
-    target = model.phi(states) + 0.01
-    u2, conv2 = sampled_control(model, states, None, 0.1, 2.0, substeps=2, phi_now=target)
-    nxt2, _, _ = model.step(states, 0.1, u=u2, substeps=2)
-    np.testing.assert_allclose(model.phi(nxt2) - model.phi(states), (np.exp(-0.2) - 1) * target, rtol=1e-7,
-                               atol=1e-10)
+    phi_err, vel_err = [], []
+    for t in range(400):
+        seen = obs + (0.2 * rng.standard_normal(obs.shape)).astype(np.float32) if t == 0 else obs
+        a, _ = ctrl.predict(seen, episode_start=np.full(n, t == 0))
+        x, p = ctrl._x, ctrl._p
+        phi_err.append(np.abs(ctrl.model.phi(x, p) - info["phi"]).max(axis=1))
+        ref, _ = task.controller_inputs(obs)
+        vel_err.append(np.abs(x[:, nq:] - ref[:, nq:]).max(axis=1))
+        obs, _, term, trunc, info = venv.step(a)
+        assert not term.any()
+    phi_err, vel_err = np.array(phi_err), np.array(vel_err)
+    assert np.all(phi_err[0] > 1e-2)  # the perturbation shows
+    assert np.all(phi_err[100] < phi_err[0])
+    assert np.all(phi_err[-1] < 1e-2 * phi_err[0])
+    if exact_model:
+        assert np.all(vel_err[-1] < 1e-3 * vel_err[0])
+    venv.close()
 
 
-def test_sampled_control_rejects_bad_arguments() -> None:
-    model = make_flocking(4)
-    s = FLOCKING_PRESETS["paper"].state()
-    with pytest.raises(ValueError, match="dt"):
-        sampled_control(model, s, None, 0.0)
-    with pytest.raises(ValueError, match="state"):
-        sampled_control(model, s[:-1], None, 0.1)
-    # Singular C at the start: not converged, u = 0, no exception.
-    sing = s.copy()
-    sing[3 * 4 - 1] = sing[4 * 4 - 1] = 1.0  # leader xd = zd
-    u, conv = sampled_control(model, sing, None, 0.1)
-    assert conv is False and np.all(u == 0)
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_observer_lowers_the_laws_phi_under_noise(env: str) -> None:
+    law = evaluate(GeometricController, env, "noisy", n_episodes=4, seed=TEST_SEED)
+    obs = evaluate(ObserverController, env, "noisy", n_episodes=4, seed=TEST_SEED)
+    assert obs.policy == "observer"
+    ratio = np.mean(obs.metrics["mean_abs_phi"]) / np.mean(law.metrics["mean_abs_phi"])
+    assert ratio < 1.0
+    if env == FLOCK:  # the clear case: the noise on the leader's log-speed is amplified by s = |v_N|
+        assert ratio < 0.5
 
 
-def test_controller_accepts_vector_env() -> None:
-    pytest.importorskip("vnhc_gym.envs.vector")
-    for env_id in (FLOCK, USV):
-        venv = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point", scenario="saturated")
-        single = gym.make(env_id, scenario="saturated", disable_env_checker=True)
-        for variant in ("plain", "sampled"):
-            from_vec = GeometricController(venv, variant=variant)
-            from_single = GeometricController(single, variant=variant)
-            assert from_vec.spec.vector and not from_single.spec.vector
-            np.testing.assert_array_equal(from_vec.force_bound, from_single.force_bound)
-            obs, _ = venv.reset(seed=0)
-            np.testing.assert_array_equal(from_vec.predict(obs)[0], from_single.predict(obs)[0])
-        assert ZeroPolicy(venv).predict(obs)[0].shape == (3, venv.single_action_space.shape[0])
-        venv.close()
+def test_observer_restarts_rows_where_an_episode_starts() -> None:
+    venv = _vec(FLOCK, 3, scenario="noisy")
+    ctrl = ObserverController(venv, alpha=0.1)
+    obs, _ = venv.reset(seed=TEST_SEED)
+    ctrl.predict(obs, episode_start=np.ones(3, dtype=bool))
+    for _ in range(5):
+        obs, *_ = venv.step(ctrl.predict(obs)[0])
+    starts = np.array([False, True, False])
+    ctrl.predict(obs, episode_start=starts)
+    ref, _ = venv.unwrapped.task.controller_inputs(obs)
+    np.testing.assert_array_equal(ctrl._x[1], ref[1])  # restarted from the observation
+    assert not np.array_equal(ctrl._x[0], ref[0])  # filtered
+    ctrl.reset()
+    ctrl.predict(obs)
+    np.testing.assert_array_equal(ctrl._x, ref)
+    venv.close()
+
+
+# --------------------------------------------------------------------------- the adaptive law
+def _true_log_ratios(task: Any, true_params: np.ndarray) -> np.ndarray:
+    names = task.model.param_names
+    return np.stack([np.log(true_params[:, names.index(k)] / task.nominal[names.index(k)]) for k in task.uncertain],
+                    axis=1)
+
+
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_adaptive_estimates_move_towards_the_true_parameters(env: str) -> None:
+    n = 6
+    venv = _vec(env, n, scenario="mismatch")
+    task = venv.unwrapped.task
+    ctrl = AdaptiveController(venv)
+    obs, info = venv.reset(seed=TEST_SEED)
+    target = _true_log_ratios(task, info["params"])
+    assert np.all(np.abs(target).sum(axis=1) > 0.05)  # the scenario does perturb them
+    errors = []
+    for t in range(100):
+        a, _ = ctrl.predict(obs, episode_start=np.full(n, t == 0))
+        errors.append(np.abs(ctrl._theta - target).sum(axis=1))
+        obs, _, term, _, info = venv.step(a)
+        assert not term.any()
+    errors = np.array(errors)
+    np.testing.assert_array_equal(errors[0], np.abs(target).sum(axis=1))  # starts at the nominal values
+    assert np.all(errors[20] < 0.3 * errors[0])
+    assert np.all(errors[-1] < 0.5 * errors[0])
+    venv.close()
+
+
+def test_adaptive_law_lowers_the_usv_phi_under_mismatch() -> None:
+    law = evaluate(GeometricController, USV, "mismatch", n_episodes=4, seed=TEST_SEED)
+    adaptive = evaluate(AdaptiveController, USV, "mismatch", n_episodes=4, seed=TEST_SEED)
+    assert np.mean(adaptive.metrics["mean_abs_phi"]) < 0.2 * np.mean(law.metrics["mean_abs_phi"])
+    assert np.mean(adaptive.metrics["late_abs_phi"]) < 0.1 * np.mean(law.metrics["late_abs_phi"])
+
+
+# --------------------------------------------------------------------------- classical baselines and tuning
+def test_make_classical_builds_each_baseline_by_name() -> None:
+    env = gym.make(USV)
+    expected = {"law": GeometricController, "tuned_law": GeometricController, "observer": ObserverController,
+                "adaptive": AdaptiveController}
+    assert set(CLASSICAL) == set(expected)
+    for name, cls in expected.items():
+        pol = make_classical(name, env)
+        assert type(pol) is cls and pol.name == name
+    assert make_classical("law", env).gain.tolist() == [DEFAULT_GAIN]
+    assert make_classical("observer", env, gain=2.0, alpha=0.1).alpha == 0.1
+    with pytest.raises(ValueError, match="unknown classical baseline"):
+        make_classical("pid", env)
+    env.close()
+
+
+class _SeedLog:
+    """A stand-in for ``evaluate`` that records the episode seeds it is asked for and runs short
+    real evaluations (1 s episodes), so tuning stays fast and still scores real rollouts."""
+
+    def __init__(self, real: Any, fake: bool = False) -> None:
+        self.real = real
+        self.fake = fake
+        self.calls: list[tuple[int, int]] = []
+
+    def __call__(self, policy: Any, env: str, scenario: str = "nominal", n_episodes: int = 10,
+                 seed: int = TEST_SEED, **kwargs: Any) -> Any:
+        self.calls.append((seed, n_episodes))
+        if self.fake:
+            point = float(len(self.calls))
+            return SimpleNamespace(summary=lambda reps=2000: {SELECTION_METRIC: SimpleNamespace(point=point)})
+        return self.real(policy, env, scenario, n_episodes=n_episodes, seed=seed, **{**kwargs, "max_time": 1.0})
+
+
+def _patch_evaluate(monkeypatch: pytest.MonkeyPatch, log: _SeedLog) -> None:
+    monkeypatch.setattr(vnhc_gym.evaluation, "evaluate", log)
+    monkeypatch.setattr(vnhc_gym.evaluation.protocol, "evaluate", log)
+
+
+@pytest.mark.parametrize("name", sorted(CLASSICAL))
+def test_tuning_reads_only_validation_seeds_and_keeps_the_best(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    log = _SeedLog(evaluate)
+    _patch_evaluate(monkeypatch, log)
+    scenario = {"observer": "noisy", "adaptive": "mismatch"}.get(name, "nominal")
+    best, table = tune(name, USV, scenario, n_episodes=3)
+    _, grid = CLASSICAL[name]
+    assert len(log.calls) == len(table) == int(np.prod([len(v) for v in grid.values()]))
+    for seed, n in log.calls:
+        assert VALIDATION_SEED <= seed and seed + n - 1 < TEST_SEED
+        assert n == 3
+    # Every setting of the grid is scored once, and the best is the lowest score.
+    keys = sorted(grid)
+    assert [tuple(row[k] for k in keys) for row in table] == list(itertools.product(*(grid[k] for k in keys)))
+    scores = [row["score"] for row in table]
+    assert all(np.isfinite(scores))
+    assert best == {k: table[int(np.argmin(scores))][k] for k in keys}
+
+
+@pytest.mark.xfail(strict=True, reason="tune() takes any seed and episode count: nothing keeps its episodes below "
+                                       "TEST_SEED (tuning.py, tune: no check of seed + n_episodes)")
+def test_tuning_cannot_be_pointed_at_test_seeds(monkeypatch: pytest.MonkeyPatch) -> None:
+    log = _SeedLog(evaluate, fake=True)
+    _patch_evaluate(monkeypatch, log)
+    for kwargs in ({"n_episodes": TEST_SEED - VALIDATION_SEED + 5}, {"seed": TEST_SEED, "n_episodes": 3}):
+        try:
+            tune("law", USV, "nominal", **kwargs)
+        except ValueError:
+            continue
+        assert all(seed + n - 1 < TEST_SEED for seed, n in log.calls), log.calls

@@ -52,7 +52,7 @@ class ObserverController(GeometricController):
                  alpha_params: float | None = None) -> None:
         super().__init__(env, gain)
         self.alpha = check_number("alpha", alpha, low=0.0, low_open=True, high=1.0)
-        self.alpha_params = self.alpha if alpha_params is None else check_number(
+        self.alpha_params: float = self.alpha if alpha_params is None else check_number(
             "alpha_params", alpha_params, low=0.0, low_open=True, high=1.0)
         self.name = "observer"
         self._x: Array | None = None  # state estimates (B, 2n)

@@ -98,7 +98,7 @@ class ZeroPolicy(Policy):
     def __init__(self, env: Any = None, *, obs_dim: int | None = None, act_dim: int | None = None) -> None:
         if env is not None:
             obs_space, act_space = spaces_of(env)
-            obs_dim, act_dim = int(np.prod(obs_space.shape)), int(np.prod(act_space.shape))
+            obs_dim, act_dim = int(np.prod(obs_space.shape or ())), int(np.prod(act_space.shape or ()))
         if obs_dim is None or act_dim is None:
             raise TypeError("pass an env or obs_dim= and act_dim=")
         self.obs_dim, self.act_dim = int(obs_dim), int(act_dim)

@@ -9,7 +9,6 @@ per-episode scale-free ``mean |phi~|``.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
 from typing import Any
 
 from vnhc_gym.baselines.adaptive import AdaptiveController
@@ -55,7 +54,9 @@ def tune(name: str, env_id: str, scenario: str, n_episodes: int = 10, seed: int 
     table = []
     for values in itertools.product(*(grid[k] for k in keys)):
         kwargs = dict(zip(keys, values, strict=True))
-        factory: Callable[[Any], Any] = lambda env, kw=kwargs: make_classical(name, env, **kw)  # noqa: E731
+        def factory(env: Any, kw: dict[str, Any] = kwargs) -> Any:
+            return make_classical(name, env, **kw)
+
         res = evaluate(factory, env_id, scenario, n_episodes=n_episodes,
                        seed=VALIDATION_SEED if seed is None else seed, **env_kwargs)
         table.append({**kwargs, "score": res.summary(reps=200)[SELECTION_METRIC].point})

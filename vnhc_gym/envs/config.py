@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["EnvConfig", "FLOAT32_MAX", "SCENARIOS", "check_integer", "check_number", "configure"]
+__all__ = ["EnvConfig", "FLOAT32_MAX", "SCENARIOS", "check_integer", "check_number", "check_optional", "configure"]
 
 #: Scenario name -> overrides of :class:`EnvConfig` fields (documented in each env's card).
 SCENARIOS: dict[str, dict[str, Any]] = {
@@ -36,13 +36,16 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 REWARDS = ("raw", "bounded")
 
 
+def check_optional(name: str, value: Any, **bounds: Any) -> float | None:
+    """:func:`check_number` that also accepts ``None`` (and returns it)."""
+    return None if value is None else check_number(name, value, allow_none=True, **bounds)
+
+
 def check_number(name: str, value: Any, *, low: float | None = None, high: float | None = None,
-                 low_open: bool = False, allow_none: bool = False) -> float | None:
+                 low_open: bool = False, allow_none: bool = False) -> float:
     """``value`` as a float if it is a finite real number in the given range, else a ``ValueError``
     (``TypeError`` for something that is not a number) naming ``name``, the value and what is
-    expected."""
-    if value is None and allow_none:
-        return None
+    expected (``allow_none`` only changes the message; use :func:`check_optional` to accept None)."""
     bounds = []
     if low is not None:
         bounds.append(f"{'>' if low_open else '>='} {low:g}")
@@ -66,7 +69,7 @@ def check_integer(name: str, value: Any, *, low: int, high: int | None = None) -
     want = f"an integer >= {low}" + (f" and <= {high}" if high is not None else "")
     if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{name} must be {want}, got {value!r} of type {type(value).__name__}")
-    if value < low or (high is not None and value > high):
+    if int(value) < low or (high is not None and int(value) > high):
         raise ValueError(f"{name} must be {want}, got {value!r}")
     return int(value)
 
@@ -132,19 +135,17 @@ class EnvConfig:
             self,
             dt=check_number("dt", self.dt, low=0.0, low_open=True, high=1e6),
             substeps=check_integer("substeps", self.substeps, low=1, high=100_000),
-            force_bound=check_number("force_bound", self.force_bound, low=0.0, low_open=True, high=1e30,
-                                     allow_none=True),
+            force_bound=check_optional("force_bound", self.force_bound, low=0.0, low_open=True, high=1e30),
             force_bound_scale=check_number("force_bound_scale", self.force_bound_scale, low=0.0, low_open=True,
                                            high=1e30),
             phi_scale=check_number("phi_scale", self.phi_scale, low=0.0, low_open=True),
-            reward_sigma=check_number("reward_sigma", self.reward_sigma, low=0.0, low_open=True, allow_none=True),
+            reward_sigma=check_optional("reward_sigma", self.reward_sigma, low=0.0, low_open=True),
             action_cost=check_number("action_cost", self.action_cost, low=0.0),
             reward_clip=check_number("reward_clip", self.reward_clip, low=0.0, low_open=True, high=1e30),
             param_mismatch=check_number("param_mismatch", self.param_mismatch, low=0.0, high=0.99),
             obs_noise=check_number("obs_noise", self.obs_noise, low=0.0, high=1e6),
             impulse_prob=check_number("impulse_prob", self.impulse_prob, low=0.0, high=1.0),
-            impulse_scale=check_number("impulse_scale", self.impulse_scale, low=0.0, low_open=True, high=1e6,
-                                       allow_none=True),
+            impulse_scale=check_optional("impulse_scale", self.impulse_scale, low=0.0, low_open=True, high=1e6),
             obs_clip=check_number("obs_clip", self.obs_clip, low=0.0, low_open=True, high=FLOAT32_MAX),
         )
 

@@ -54,8 +54,8 @@ class ConstraintEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         :class:`~vnhc_gym.envs.config.EnvConfig` fields and the task's own options.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 20}
-    task_class: ClassVar[type]
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 20}  # noqa: RUF012 (Gymnasium's API)
+    task_class: ClassVar[Any]
 
     def __init__(self, scenario: str = "nominal", render_mode: str | None = None, **kwargs: Any) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:

@@ -40,8 +40,8 @@ def step_module(task: Task) -> ModuleType:
     system = task.model.kernels.__name__
     hooks = type(task).__module__
     hooks_file = sys.modules[hooks].__file__ or ""
-    sources = [_TEMPLATE, hooks_file, episode.__file__ or "", _random_kernels.__file__ or "",
-               _mechanics_kernels.__file__ or ""]
+    sources: list[str | Path] = [_TEMPLATE, hooks_file, episode.__file__ or "", _random_kernels.__file__ or "",
+                                 _mechanics_kernels.__file__ or ""]
     key = module_key(["step", system, hooks], sources)
     block = (f"from {hooks} import DRAW_STAGES, draw, observe\n"
              f"from {system} import N, _aux, _phi, rk4_row, work\n\n")

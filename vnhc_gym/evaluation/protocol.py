@@ -125,7 +125,7 @@ def evaluate(policy: Any, env_id: str, scenario: str = "nominal", n_episodes: in
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     probe = gym.make(env_id, scenario=scenario, **env_kwargs).unwrapped
-    dt = float(probe.dt)
+    dt = float(probe.dt)  # type: ignore[attr-defined]
     probe.close()
     steps = max(1, round(max_time / dt))
     venv = gym.make_vec(env_id, num_envs=n_episodes, vectorization_mode="vector_entry_point",

@@ -146,11 +146,11 @@ class FlockingTask(Task):
             raise ValueError(f"masses must be a positive number or {n_agents} positive numbers, got {masses!r}")
         m_arr = np.array([check_number(f"masses[{i}]", v, low=0.0, low_open=True, high=1e12)
                           for i, v in enumerate(masses)], dtype=np.float64)
-        g = check_number("g", g, low=0.0, low_open=True, high=1e6)
+        g_ = check_number("g", g, low=0.0, low_open=True, high=1e6)
         self.n_agents = n_agents
         self.preset = preset
         self.model = make_flocking(n_agents)
-        self.nominal = np.array([*m_arr, g], dtype=np.float64)
+        self.nominal = np.array([*m_arr, g_], dtype=np.float64)
         self.obs_dim = flocking_obs_dim(n_agents)
         self.impulse_mask = np.zeros(2 * n_agents)
         self.impulse_mask[: n_agents - 1] = 1.0  # follower xd
@@ -294,7 +294,7 @@ class FlockingAlignEnv(ConstraintEnv):
         from vnhc_gym.envs.rendering import FlockingRenderer
 
         if self._renderer is None:
-            self._renderer = FlockingRenderer(self.task.n_agents, self.render_mode, self.metadata["render_fps"])
+            self._renderer = FlockingRenderer(self.task.n_agents, str(self.render_mode), self.metadata["render_fps"])
         return self._renderer.draw(self.batch.buf.state[row], self.batch.buf.phi[row])
 
 

@@ -115,20 +115,20 @@ class SledCruiseTask(Task):
     def __init__(self, config: Any, *, mass: float = 20.0, inertia: float = 2.0, offset: float = 0.3,
                  cruise_speed: float = 1.5, max_speed: float = 10.0, max_turn_rate: float = 10.0) -> None:
         self.config = config
-        mass = check_number("mass", mass, low=0.0, low_open=True, high=1e9)
-        inertia = check_number("inertia", inertia, low=0.0, low_open=True, high=1e9)
-        offset = check_number("offset", offset, low=1e-3, high=100.0)
-        cruise_speed = check_number("cruise_speed", cruise_speed, low=0.0, high=100.0)
+        m_ = check_number("mass", mass, low=0.0, low_open=True, high=1e9)
+        i_ = check_number("inertia", inertia, low=0.0, low_open=True, high=1e9)
+        a_ = check_number("offset", offset, low=1e-3, high=100.0)
+        v_ = check_number("cruise_speed", cruise_speed, low=0.0, high=100.0)
         self.max_speed = check_number("max_speed", max_speed, low=0.0, low_open=True, high=1e6)
         self.max_turn_rate = check_number("max_turn_rate", max_turn_rate, low=0.0, low_open=True, high=1e6)
         self.model = make_sled()
-        self.nominal = self.model.params(m=mass, I=inertia, a=offset, v_ref=cruise_speed)  # type: ignore[arg-type]
+        self.nominal = self.model.params(m=m_, I=i_, a=a_, v_ref=v_)
         self.obs_dim = 5
         self.impulse_mask = np.array([1.0, 1.0, 0.0])
         names = self.model.param_names
         self.args = Args(nominal=self.nominal, mismatch_mask=np.array([n in self.uncertain for n in names]),
-                         mismatch=config.param_mismatch, max_speed=float(self.max_speed),  # type: ignore[arg-type]
-                         max_rate=float(self.max_turn_rate), vel_scale=self.velocity_scale)  # type: ignore[arg-type]
+                         mismatch=config.param_mismatch, max_speed=self.max_speed, max_rate=self.max_turn_rate,
+                         vel_scale=self.velocity_scale)
 
     @property
     def force_bound(self) -> Array:
@@ -249,7 +249,7 @@ class SledCruiseEnv(ConstraintEnv):
         from vnhc_gym.envs.rendering import USVRenderer
 
         if self._renderer is None:
-            self._renderer = USVRenderer(self.render_mode, self.metadata["render_fps"])
+            self._renderer = USVRenderer(str(self.render_mode), self.metadata["render_fps"])
         buf = self.batch.buf
         return self._renderer.draw(buf.state[row], buf.phi[row], lambda x, y: np.zeros((*np.shape(x), 2)))
 

@@ -160,10 +160,10 @@ class USVTask(Task):
         if not isinstance(current, str) or current not in CURRENTS:
             raise ValueError(f"current must be one of {sorted(CURRENTS)}, got {current!r}")
         field = get_current(current)
-        mass = check_number("mass", mass, low=0.0, low_open=True, high=1e12)
-        inertia = check_number("inertia", inertia, low=0.0, low_open=True, high=1e12)
-        domain = check_number("domain", domain, low=0.0, low_open=True, high=1e9)
-        max_turn_rate = check_number("max_turn_rate", max_turn_rate, low=0.0, low_open=True, high=1e6)
+        mass_ = check_number("mass", mass, low=0.0, low_open=True, high=1e12)
+        inertia_ = check_number("inertia", inertia, low=0.0, low_open=True, high=1e12)
+        domain_ = check_number("domain", domain, low=0.0, low_open=True, high=1e9)
+        rate_ = check_number("max_turn_rate", max_turn_rate, low=0.0, low_open=True, high=1e6)
         overrides: dict[str, float] = {}
         if current_params is not None:
             if not isinstance(current_params, dict):
@@ -174,15 +174,15 @@ class USVTask(Task):
                 raise ValueError(f"current_params has unknown names {unknown} for current {current!r}; "
                                  f"valid: {sorted(field.defaults)}")
             for k, v in current_params.items():
-                overrides[f"c_{k}"] = check_number(f"current_params[{k!r}]", v, low=-1e6, high=1e6)  # type: ignore
+                overrides[f"c_{k}"] = check_number(f"current_params[{k!r}]", v, low=-1e6, high=1e6)
         self.preset = preset
         self.current = current
-        self.domain = float(domain)  # type: ignore[arg-type]
-        self.max_turn_rate = float(max_turn_rate)  # type: ignore[arg-type]
+        self.domain = domain_
+        self.max_turn_rate = rate_
         self.fixed_field = current != "random" or current_params is not None
         self.model = make_usv(current)
         names = self.model.param_names
-        self.nominal = self.model.params(m=mass, I=inertia, **overrides)  # type: ignore[arg-type]
+        self.nominal = self.model.params(m=mass_, I=inertia_, **overrides)
         self.obs_dim = USV_OBS_DIM
         self.impulse_mask = np.array([1.0, 1.0, 0.0])  # kicks on xd, yd
         amp_idx = [] if self.fixed_field else [names.index(f"c_{k}") for k in RANDOM_PARAM_NAMES]
@@ -361,7 +361,7 @@ class USVStreamEnv(ConstraintEnv):
         from vnhc_gym.envs.rendering import USVRenderer
 
         if self._renderer is None:
-            self._renderer = USVRenderer(self.render_mode, self.metadata["render_fps"])
+            self._renderer = USVRenderer(str(self.render_mode), self.metadata["render_fps"])
         task = self.task
         buf = self.batch.buf
         params = task.current_params(buf.params_true[row])

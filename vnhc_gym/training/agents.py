@@ -139,9 +139,9 @@ def load_agent(path_or_name: str | Path, env: Any = None) -> AgentPolicy:
                       UntrustedFileWarning, stacklevel=2)
     meta = sidecar_of(p)
     if meta.get("algo") == "recurrent_ppo":
-        from sb3_contrib import RecurrentPPO as Algo
+        from sb3_contrib import RecurrentPPO as Algo  # type: ignore[assignment]
     else:
-        from stable_baselines3 import PPO as Algo
+        from stable_baselines3 import PPO as Algo  # type: ignore[assignment]
     model = Algo.load(p, device="cpu")
     agent = AgentPolicy(model, meta)
     if agent.residual is not None:

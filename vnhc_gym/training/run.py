@@ -100,7 +100,8 @@ def _rms_json(venv: Any) -> dict[str, Any] | None:
     if isinstance(venv, VecFrameStack):
         venv = venv.venv
     if isinstance(venv, VecNormalize) and venv.norm_obs:
-        return {"mean": venv.obs_rms.mean.tolist(), "var": venv.obs_rms.var.tolist(), "clip": venv.clip_obs,
+        rms: Any = venv.obs_rms
+        return {"mean": rms.mean.tolist(), "var": rms.var.tolist(), "clip": venv.clip_obs,
                 "epsilon": venv.epsilon}
     return None
 
@@ -194,17 +195,18 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
 
         venv = VecFrameStack(venv, frame_stack)
     if cfg.algo == "recurrent_ppo":
-        from sb3_contrib import RecurrentPPO as Algo
+        from sb3_contrib import RecurrentPPO as Algo  # type: ignore[assignment]
 
         policy = "MlpLstmPolicy" if policy == "MlpPolicy" else policy
     else:
-        from stable_baselines3 import PPO as Algo
+        from stable_baselines3 import PPO as Algo  # type: ignore[assignment]
     model = Algo(policy, venv, seed=cfg.seed, device="cpu", verbose=0, **hp)
     if residual is not None:
         # The untrained residual agent is exactly the base law: its mean action starts at zero.
         with torch.no_grad():
-            model.policy.action_net.weight.zero_()
-            model.policy.action_net.bias.zero_()
+            head: Any = model.policy.action_net
+            head.weight.zero_()
+            head.bias.zero_()
     meta: dict[str, Any] = {
         "format": SIDECAR_FORMAT, "name": stem, "algo": cfg.algo, "env_id": env_id, "scenario": cfg.scenario,
         "seed": cfg.seed, "n_envs": n_envs, "n_timesteps": n_timesteps, "config": asdict(cfg),

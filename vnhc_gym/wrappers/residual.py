@@ -77,7 +77,7 @@ class ResidualAction(gym.Wrapper):
                  observe_base: bool = False) -> None:
         box = _check_spaces(env.observation_space, env.action_space)
         super().__init__(env)
-        self.scale = check_number("scale", scale, low=0.0, high=1.0)
+        self.scale: float = check_number("scale", scale, low=0.0, high=1.0)
         self.base = _default_base(env, base, gain)
         self.observe_base = bool(observe_base)
         if self.observe_base:
@@ -134,7 +134,7 @@ class ResidualVectorAction(VectorWrapper):
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
               ) -> tuple[Any, dict[str, Any]]:
-        obs, info = self.env.reset(seed=seed, options=options)
+        obs, info = self.env.reset(seed=seed, options=options)  # type: ignore[arg-type]  # lists too
         n = self.num_envs
         mask = (options or {}).get("reset_mask")
         starts = np.ones(n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
