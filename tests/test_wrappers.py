@@ -1,123 +1,318 @@
-"""Tests of vnhc_gym.wrappers.ResidualAction."""
+"""Tests of vnhc_gym.wrappers: ResidualAction (single env), ResidualVectorAction (vector env) and
+ResidualPolicy.
+
+The reference for every wrapped run is the same environment driven by hand: the base controller's
+action (plus the residual, scaled and clipped, as documented) fed to an unwrapped environment with
+the same seeds, with ``episode_start`` given to a stateful base where a new episode begins.
+"""
 
 from __future__ import annotations
+
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from gymnasium.vector import AutoresetMode
 
 import vnhc_gym  # noqa: F401
-from vnhc_gym.baselines import GeometricController, ZeroPolicy
-from vnhc_gym.evaluation import evaluate
-from vnhc_gym.wrappers import ResidualAction, ResidualPolicy
+from vnhc_gym.baselines import GeometricController, ObserverController, ZeroPolicy, make_classical
+from vnhc_gym.evaluation import TEST_SEED, evaluate
+from vnhc_gym.tasks import env_id, env_ids
+from vnhc_gym.wrappers import ResidualAction, ResidualPolicy, ResidualVectorAction
 
-FLOCK = "vnhc_gym/FlockingAlign-v0"
-USV = "vnhc_gym/USVStream-v0"
+ENVS = env_ids("v1")
+USV = env_id("usv")
+FLOCK = env_id("flocking")
 
 
-def _run(env: gym.Env, act, n: int = 80, seed: int = 0) -> tuple[np.ndarray, np.ndarray, list[dict]]:
-    obs, _ = env.reset(seed=seed)
-    observations, rewards, infos = [obs], [], []
-    for _ in range(n):
-        obs, r, term, trunc, info = env.step(act(obs))
+def _short(e: str) -> str:
+    return e.removeprefix("vnhc_gym/")
+
+
+def _vec(env: str, n: int, **kwargs: Any) -> gym.vector.VectorEnv:
+    return gym.make_vec(env, num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
+
+
+class _Linear:
+    """A deterministic 'agent' that depends on its whole input: ``tanh(W obs)`` rounded to 1e-4 (so a
+    single observation and a batch give the same bits whatever the matrix product's summation order)."""
+
+    def __init__(self, in_dim: int, out_dim: int, seed: int = 0) -> None:
+        self.w = np.random.default_rng(seed).normal(0, 1.0, (in_dim, out_dim))
+        self.in_dim = in_dim
+
+    def predict(self, obs: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True):
+        o = np.asarray(obs, dtype=np.float64)
+        assert o.shape[-1] == self.in_dim
+        return np.round(np.tanh(3 * o @ self.w), 4).astype(np.float32), state
+
+
+class _Record(gym.Wrapper):
+    """Records the actions the inner environment receives."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.actions: list[np.ndarray] = []
+
+    def step(self, action: Any):
+        self.actions.append(np.array(action, copy=True))
+        return self.env.step(action)
+
+
+# --------------------------------------------------------------------------- single environment
+def _run_single(env: gym.Env, act: Any, n: int = 60, seed: int = TEST_SEED) -> tuple[np.ndarray, list, list]:
+    obs, info = env.reset(seed=seed)
+    observations, rewards, infos = [obs], [], [info]
+    for t in range(n):
+        obs, r, term, trunc, info = env.step(act(obs, t))
         observations.append(obs)
         rewards.append(r)
         infos.append(info)
         if term or trunc:
             break
-    return np.stack(observations), np.array(rewards), infos
+    return np.stack(observations), rewards, infos
 
 
-@pytest.mark.parametrize("env_id", [FLOCK, USV])
 @pytest.mark.parametrize("scenario", ["nominal", "noisy"])
-def test_zero_residual_equals_base_policy_exactly(env_id: str, scenario: str) -> None:
-    base_env = gym.make(env_id, scenario=scenario, disable_env_checker=True)
-    base = GeometricController(base_env)
-    obs_a, rew_a, info_a = _run(base_env, lambda o: base.predict(o)[0])
-    wrapped = ResidualAction(gym.make(env_id, scenario=scenario, disable_env_checker=True))
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_zero_residual_is_the_base_law(env: str, scenario: str, assert_same: Any) -> None:
+    plain = gym.make(env, scenario=scenario)
+    law = GeometricController(plain)
+    obs_a, rew_a, info_a = _run_single(plain, lambda o, t: law.predict(o)[0])
+    wrapped = ResidualAction(gym.make(env, scenario=scenario))
+    assert wrapped.observation_space == plain.observation_space and wrapped.action_space == plain.action_space
     zero = np.zeros(wrapped.action_space.shape, dtype=np.float32)
-    obs_b, rew_b, info_b = _run(wrapped, lambda o: zero)
-    np.testing.assert_array_equal(obs_a, obs_b)
-    np.testing.assert_array_equal(rew_a, rew_b)
-    for ia, ib in zip(info_a, info_b, strict=True):
-        np.testing.assert_array_equal(ia["state"], ib["state"])
+    obs_b, rew_b, info_b = _run_single(wrapped, lambda o, t: zero)
+    assert_same(obs_a, obs_b)
+    assert_same(rew_a, rew_b)
+    for t, (ia, ib) in enumerate(zip(info_a[1:], info_b[1:], strict=True)):
+        assert_same(ia["state"], ib["state"])
+        assert_same(ia["force"], ib["force"])
         np.testing.assert_array_equal(ib["residual_action"], 0.0)
-    # info shows the parts: base_action is what the base policy says for the previous observation.
-    np.testing.assert_array_equal(info_b[0]["base_action"], base.predict(obs_a[0])[0])
+        # base_action is the law's action on the previous observation.
+        np.testing.assert_array_equal(ib["base_action"], law.predict(obs_a[t])[0])
+    plain.close()
+    wrapped.close()
 
 
-def test_residual_is_added_scaled_and_clipped() -> None:
-    env = ResidualAction(gym.make(USV, disable_env_checker=True), scale=0.25)
-    obs, _ = env.reset(seed=1)
-    base_a = env.base.predict(obs)[0]
-    applied = env.action(np.array([3.0], dtype=np.float32))  # clipped to 1 first
-    np.testing.assert_allclose(applied, np.clip(base_a + 0.25, -1, 1), rtol=1e-6)
-    _, _, _, _, info = env.step(np.array([-0.4], dtype=np.float32))
-    np.testing.assert_allclose(info["residual_action"], [-0.1], rtol=1e-6)
-    assert info["base_action"].dtype == np.float32
+def test_zero_residual_on_a_stateful_base_is_that_base() -> None:
+    """The observer keeps a state estimate: the wrapper restarts it at every reset."""
+    plain = gym.make(FLOCK, scenario="noisy")
+    observer = ObserverController(plain)
+    runs = []
+    for seed in (TEST_SEED, TEST_SEED + 1):
+        runs.append(_run_single(plain, lambda o, t: observer.predict(o, episode_start=[t == 0])[0], seed=seed)[0])
+    wrapped = ResidualAction(gym.make(FLOCK, scenario="noisy"), base="observer")
+    assert isinstance(wrapped.base, ObserverController)
+    zero = np.zeros(3, dtype=np.float32)
+    for seed, ref in zip((TEST_SEED, TEST_SEED + 1), runs, strict=True):
+        obs, _, _ = _run_single(wrapped, lambda o, t: zero, seed=seed)
+        np.testing.assert_array_equal(obs, ref)
+    plain.close()
+    wrapped.close()
 
 
-def test_base_is_reset_and_custom_base_used() -> None:
-    class Base(ZeroPolicy):
-        resets = 0
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_residual_is_scaled_clipped_and_added(env: str) -> None:
+    rec = _Record(gym.make(env))
+    w = ResidualAction(rec, scale=0.25)
+    law = GeometricController(gym.make(env))
+    task = w.unwrapped.task
+    obs, _ = w.reset(seed=TEST_SEED)
+    m = w.action_space.shape[0]
+    for residual in (np.full(m, 3.0), np.full(m, -0.4), np.linspace(-1, 1, m)):
+        base = law.predict(obs)[0].astype(np.float64)
+        obs, _, _, _, info = w.step(residual.astype(np.float32))
+        expected = np.clip(base + 0.25 * np.clip(residual, -1, 1), -1, 1)
+        np.testing.assert_allclose(rec.actions[-1], expected, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(info["force"], expected * task.force_bound, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(info["residual_action"], 0.25 * np.clip(residual, -1, 1), rtol=1e-6)
+        np.testing.assert_array_equal(info["base_action"], base.astype(np.float32))
+        assert info["base_action"].dtype == np.float32 and info["residual_action"].dtype == np.float32
+    w.close()
 
-        def reset(self) -> None:
-            Base.resets += 1
 
-    env = gym.make(FLOCK, disable_env_checker=True)
-    w = ResidualAction(env, base=Base(env), scale=0.5)
-    w.reset(seed=0)
-    w.reset(seed=1)
-    assert Base.resets == 2
-    _, _, _, _, info = w.step(np.ones(3, dtype=np.float32))
-    np.testing.assert_array_equal(info["base_action"], 0.0)
-    np.testing.assert_allclose(info["force"], 0.5 * 250.0)
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_observe_base_appends_the_base_action(env: str) -> None:
+    plain = gym.make(env)
+    w = ResidualAction(gym.make(env), observe_base=True)
+    law = GeometricController(plain)
+    d, m = plain.observation_space.shape[0], plain.action_space.shape[0]
+    space = w.observation_space
+    assert space.shape == (d + m,) and space.dtype == np.float32
+    np.testing.assert_array_equal(space.low, np.concatenate([plain.observation_space.low, -np.ones(m)]))
+    np.testing.assert_array_equal(space.high, np.concatenate([plain.observation_space.high, np.ones(m)]))
+    obs, _ = w.reset(seed=TEST_SEED)
+    raw, _ = plain.reset(seed=TEST_SEED)
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        assert obs.shape == (d + m,) and obs.dtype == np.float32 and space.contains(obs)
+        np.testing.assert_array_equal(obs[:d], raw)
+        np.testing.assert_array_equal(obs[d:], law.predict(raw)[0])
+        a = rng.uniform(-1, 1, m).astype(np.float32)
+        obs, _, _, _, info = w.step(a)
+        raw, *_ = plain.step(np.clip(law.predict(raw)[0].astype(np.float64) + 0.2 * a.astype(np.float64), -1, 1)
+                              .astype(np.float32))
+    w.close()
+    plain.close()
 
 
-def test_space_checks_raise_type_error() -> None:
+def test_space_and_argument_checks() -> None:
     with pytest.raises(TypeError, match="Box"):
         ResidualAction(gym.make("CartPole-v1"))  # Discrete actions
     with pytest.raises(TypeError, match=r"Box\(-1, 1\)"):
         ResidualAction(gym.make("Pendulum-v1"))  # Box(-2, 2)
     with pytest.raises(TypeError, match="predict"):
-        ResidualAction(gym.make(USV, disable_env_checker=True), base=object())
-    with pytest.raises(TypeError, match="task"):
-        ResidualAction(gym.make("MountainCarContinuous-v0"), continuous=True)
+        ResidualAction(gym.make(USV), base=object())
+    with pytest.raises(ValueError, match="scale"):
+        ResidualAction(gym.make(USV), scale=1.5)
+    with pytest.raises(ValueError, match="unknown classical baseline"):
+        ResidualAction(gym.make(USV), base="pid")
+    with pytest.raises(ValueError, match="scale"):
+        ResidualVectorAction(_vec(USV, 2), scale=-0.1)
+    # A custom base is used as given.
+    env = gym.make(FLOCK)
+    w = ResidualAction(env, base=ZeroPolicy(env), scale=0.5)
+    w.reset(seed=0)
+    _, _, _, _, info = w.step(np.ones(3, dtype=np.float32))
+    np.testing.assert_array_equal(info["base_action"], 0.0)
+    np.testing.assert_allclose(info["force"], 0.5 * env.unwrapped.task.force_bound)
+    assert ResidualAction(gym.make(USV), gain=2.0).base.gain.tolist() == [2.0]
 
 
-def test_continuous_mode_uses_true_state_so_noise_does_not_matter() -> None:
-    trajs = {}
-    for scenario in ("nominal", "noisy"):
-        w = ResidualAction(gym.make(USV, scenario=scenario, disable_env_checker=True), continuous=True)
-        assert w.unwrapped.task.feedback == "continuous"
-        _, _, infos = _run(w, lambda o: np.zeros(1, dtype=np.float32), n=100, seed=5)
-        trajs[scenario] = np.array([i["abs_phi"] for i in infos])
-        assert "base_action" in infos[0] and "residual_action" in infos[0]
+# --------------------------------------------------------------------------- vector environment
+def _drive_vector(env: str, n: int, mode: AutoresetMode, base_name: str, steps: int, residual: Any,
+                  **kwargs: Any) -> tuple[list, list]:
+    """The reference: a plain vector env with the base driven by hand (episode starts as documented)."""
+    venv = _vec(env, n, autoreset_mode=mode, **kwargs)
+    base = make_classical(base_name, venv)
+    obs, _ = venv.reset(seed=TEST_SEED)
+    starts = np.ones(n, dtype=bool)
+    pending = np.zeros(n, dtype=bool)
+    observations, infos = [obs], []
+    for t in range(steps):
+        b, _ = base.predict(obs, episode_start=starts)
+        a = np.clip(b.astype(np.float64) + 0.2 * np.clip(residual(t, obs), -1, 1), -1, 1).astype(np.float32)
+        obs, _, term, trunc, info = venv.step(a)
+        done = term | trunc
+        if mode is AutoresetMode.SAME_STEP:
+            starts = done
+        else:  # NEXT_STEP: the rows done at the last step restart at this one
+            starts, pending = pending, done
+        observations.append(obs)
+        infos.append(info)
+    venv.close()
+    return observations, infos
+
+
+@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP], ids=lambda m: m.value)
+@pytest.mark.parametrize("base", ["law", "observer"])
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_vector_wrapper_equals_the_base_driven_by_hand(env: str, base: str, mode: AutoresetMode) -> None:
+    """Across autoresets (episodes of 7 steps), with a zero and an observation-dependent residual."""
+    n, steps = 3, 20
+    kw = {"scenario": "noisy", "max_episode_steps": 7}
+    for residual in (lambda t, o: np.zeros((n, 1)), lambda t, o: np.sin(t + np.arange(n))[:, None] * o[:, :1]):
+        ref_obs, ref_infos = _drive_vector(env, n, mode, base, steps, residual, **kw)
+        w = ResidualVectorAction(_vec(env, n, autoreset_mode=mode, **kw), base=base, scale=0.2)
+        obs, _ = w.reset(seed=TEST_SEED)
+        np.testing.assert_array_equal(obs, ref_obs[0])
+        for t in range(steps):
+            obs, _, _, _, info = w.step(np.broadcast_to(residual(t, obs), (n, w.single_action_space.shape[0]))
+                                        .astype(np.float32))
+            np.testing.assert_array_equal(obs, ref_obs[t + 1])
+            np.testing.assert_array_equal(info["force"], ref_infos[t]["force"])
         w.close()
-        assert w.unwrapped.task.feedback == "open"
-    np.testing.assert_array_equal(trajs["nominal"], trajs["noisy"])
-    # The in-loop law makes phi decay like exp(-t): 5 s -> factor e^-5.
-    assert trajs["nominal"][-1] < 0.02 * trajs["nominal"][0]
 
 
-def test_residual_policy_matches_wrapper() -> None:
-    base_env = gym.make(USV, disable_env_checker=True)
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_vector_observe_base_and_final_observations(env: str) -> None:
+    """SAME_STEP: the returned observation and every ``final_obs`` get the law's action appended."""
+    n = 4
+    kw = {"autoreset_mode": AutoresetMode.SAME_STEP, "max_episode_steps": 5}
+    w = ResidualVectorAction(_vec(env, n, **kw), observe_base=True)
+    plain = _vec(env, n, **kw)
+    law = GeometricController(plain)
+    d, m = plain.single_observation_space.shape[0], plain.single_action_space.shape[0]
+    assert w.single_observation_space.shape == (d + m,)
+    assert w.observation_space.shape == (n, d + m)
+    obs, _ = w.reset(seed=TEST_SEED)
+    raw, _ = plain.reset(seed=TEST_SEED)
+    finals = 0
+    for _ in range(12):
+        np.testing.assert_array_equal(obs[:, :d], raw)
+        np.testing.assert_array_equal(obs[:, d:], law.predict(raw)[0])
+        obs, _, _, _, info = w.step(np.zeros((n, m), dtype=np.float32))
+        raw, _, _, _, raw_info = plain.step(law.predict(raw)[0])
+        if "final_obs" in raw_info:
+            np.testing.assert_array_equal(info["_final_obs"], raw_info["_final_obs"])
+            for i in np.flatnonzero(raw_info["_final_obs"]):
+                final = info["final_obs"][i]
+                assert final.shape == (d + m,) and final.dtype == np.float32
+                np.testing.assert_array_equal(final[:d], raw_info["final_obs"][i])
+                np.testing.assert_array_equal(final[d:], law.predict(raw_info["final_obs"][i])[0])
+                finals += 1
+    assert finals == 2 * n  # every sub-env ended twice (steps 5 and 10)
+    w.close()
+    plain.close()
 
-    class Const:
-        def predict(self, obs, deterministic=True):
-            return np.full((*np.shape(obs)[:-1], 1), 0.5, dtype=np.float32), None
 
-    pol = ResidualPolicy(Const(), GeometricController(base_env), scale=0.2)
-    a = evaluate(pol, USV, n_episodes=2, max_time=2.0)
-    b = evaluate(Const(), USV, n_episodes=2, max_time=2.0, wrapper=lambda e: ResidualAction(e, scale=0.2))
-    np.testing.assert_array_equal(a.phi_series, b.phi_series)
+def test_vector_reset_mask_keeps_the_other_rows_base_actions() -> None:
+    n = 3
+    w = ResidualVectorAction(_vec(USV, n, autoreset_mode=AutoresetMode.DISABLED), observe_base=True)
+    obs, _ = w.reset(seed=TEST_SEED)
+    obs, *_ = w.step(np.zeros((n, 1), dtype=np.float32))
+    before = obs[:, -1].copy()
+    mask = np.array([False, True, False])
+    obs2, _ = w.reset(options={"reset_mask": mask})
+    law = GeometricController(w.env)
+    np.testing.assert_array_equal(obs2[[0, 2], -1], before[[0, 2]])
+    np.testing.assert_array_equal(obs2[1, -1], law.predict(obs2[1, :-1])[0][0])
+    w.close()
 
 
-def test_ppo_trains_on_residual_env() -> None:
+# --------------------------------------------------------------------------- ResidualPolicy
+@pytest.mark.parametrize("observe_base", [False, True])
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_residual_policy_is_the_wrapped_envs_applied_action(env: str, observe_base: bool) -> None:
+    rec = _Record(gym.make(env))
+    w = ResidualAction(rec, scale=0.3, observe_base=observe_base)
+    d, m = rec.observation_space.shape[0], rec.action_space.shape[0]
+    agent = _Linear(d + (m if observe_base else 0), m)
+    policy = ResidualPolicy(agent, GeometricController(gym.make(env)), scale=0.3, observe_base=observe_base)
+    obs, _ = w.reset(seed=TEST_SEED)
+    for _ in range(30):
+        raw = obs[:d]
+        mine, state = policy.predict(raw)
+        assert state is None and mine.dtype == np.float32 and mine.shape == (m,)
+        obs, *_ = w.step(agent.predict(obs)[0])
+        np.testing.assert_array_equal(rec.actions[-1], mine)
+    # Batched, it is row by row.
+    batch = np.stack([w.reset(seed=TEST_SEED + i)[0][:d] for i in range(4)])
+    np.testing.assert_array_equal(policy.predict(batch)[0], np.stack([policy.predict(o)[0] for o in batch]))
+    w.close()
+
+
+def test_residual_policy_passes_episode_starts_to_a_stateful_base() -> None:
+    """With a zero agent, the residual policy on the observer is the observer, episode for episode."""
+    zero = ZeroPolicy(obs_dim=12, act_dim=3)
+
+    def make(env: Any) -> ResidualPolicy:
+        return ResidualPolicy(zero, ObserverController(env), name="residual-observer")
+
+    a = evaluate(make, FLOCK, "noisy", n_episodes=3, seed=TEST_SEED, max_time=3.0)
+    b = evaluate(ObserverController, FLOCK, "noisy", n_episodes=3, seed=TEST_SEED, max_time=3.0)
+    assert a.policy == "residual-observer"
+    np.testing.assert_array_equal(a.abs_phi, b.abs_phi)
+
+
+def test_ppo_learns_on_the_single_residual_env() -> None:
+    """RL Zoo's path: SB3 on gym.make + ResidualAction."""
     pytest.importorskip("stable_baselines3")
     from stable_baselines3 import PPO
 
-    env = ResidualAction(gym.make(USV, disable_env_checker=True, max_episode_steps=50))
+    env = ResidualAction(gym.make(USV, max_episode_steps=50), observe_base=True)
     model = PPO("MlpPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu", verbose=0)
     model.learn(total_timesteps=128)
     obs, _ = env.reset(seed=0)
@@ -125,3 +320,4 @@ def test_ppo_trains_on_residual_env() -> None:
     assert action.shape == (1,)
     _, _, _, _, info = env.step(action)
     assert np.isfinite(info["abs_phi"])
+    env.close()

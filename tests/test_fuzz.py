@@ -1,0 +1,58 @@
+"""Bad constructor arguments, for every registered environment: either an error that names the
+argument, or an environment that survives random steps with finite observations."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import vnhc_gym
+from vnhc_gym.envs.config import CONFIG_FIELDS
+from vnhc_gym.tasks import TASKS
+
+ENV_IDS = vnhc_gym.env_ids("v1")
+
+#: Values that stress the checks: wrong types, non-finite, huge and tiny numbers, containers.
+ODD_VALUES = st.one_of(
+    st.none(), st.booleans(), st.text(max_size=5), st.lists(st.integers(), max_size=3), st.dictionaries(
+        st.text(max_size=3), st.floats(allow_nan=True), max_size=2),
+    st.integers(min_value=-10**40, max_value=10**40), st.just(10**400),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.sampled_from([0.0, -0.0, 1e-300, 5e-324, 1e300, -1e300, math.inf, math.nan, 1e-9, 1e9]),
+)
+
+
+def _names(env_id: str) -> list[str]:
+    entry = next(e for e in TASKS.values() if env_id.endswith(f"/{e.env_name}-v1"))
+    return sorted({*CONFIG_FIELDS, *entry.task_class.options, "scenario", "not_an_argument"})
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_bad_arguments_are_refused_by_name_or_survived(env_id: str, data: st.DataObject) -> None:
+    name = data.draw(st.sampled_from(_names(env_id)), label="argument")
+    value = data.draw(ODD_VALUES, label="value")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            env = gym.make(env_id, **{name: value})
+    except (ValueError, TypeError) as exc:
+        assert name in str(exc), f"{type(exc).__name__} for {name}={value!r} does not name it: {exc}"
+        return
+    rng = np.random.default_rng(0)
+    obs, _ = env.reset(seed=0)
+    assert np.all(np.isfinite(obs))
+    for _ in range(50):
+        obs, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, env.action_space.shape))
+        assert np.all(np.isfinite(obs)), f"{name}={value!r}: non-finite observation {obs}"
+        assert math.isfinite(reward)
+        if terminated or truncated:
+            assert not terminated or "termination_reason" in info
+            obs, _ = env.reset()
