@@ -75,10 +75,10 @@ def _assert_same(a: Any, b: Any, path: str = "") -> None:
             assert a.tobytes() == b.tobytes(), f"{where}: {a!r} vs {b!r}"
     else:
         assert type(a) is type(b), f"{where}: {type(a).__name__} vs {type(b).__name__}"
-        if a is None or isinstance(a, str | bool | int):
-            assert a == b, f"{where}: {a!r} vs {b!r}"
-        else:
+        if isinstance(a, float | complex | np.generic):  # by bits: NaN == NaN, -0.0 != 0.0
             assert np.asarray(a).tobytes() == np.asarray(b).tobytes(), f"{where}: {a!r} vs {b!r}"
+        else:
+            assert a == b, f"{where}: {a!r} vs {b!r}"
 
 
 @pytest.fixture(scope="session")

@@ -1,39 +1,69 @@
-"""Smoke test of experiments/bench_envs.py: the quick run finishes and writes its results."""
+"""Smoke tests of the experiment scripts' quick runs: they finish and write (or print) their results."""
 
 from __future__ import annotations
 
+import csv
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parent.parent / "experiments" / "bench_envs.py"
+from vnhc_gym.tasks import env_ids
+
+EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
+
+
+def _run(script: str, out: Path, timeout: int = 900) -> subprocess.CompletedProcess:
+    proc = subprocess.run([sys.executable, str(EXPERIMENTS / script), "--quick", "--out", str(out)],
+                          capture_output=True, text=True, timeout=timeout)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc
 
 
 @pytest.mark.slow
-def test_bench_envs_quick(tmp_path: Path) -> None:
+def test_train_compare_quick_writes_every_table_and_figure(tmp_path: Path) -> None:
+    pytest.importorskip("stable_baselines3")
+    out = tmp_path / "compare"
+    proc = _run("train_compare.py", out)
+    report = out / "report"
+    envs = ("flocking", "usv")  # the script's quick grid
+    for name in ("comparison.md", "comparison.csv", "comparison.json", "performance_profile.png",
+                 *(f"learning_curves_{env}.png" for env in envs)):
+        assert (report / name).is_file() and (report / name).stat().st_size > 0, name
+    rows = json.loads((report / "comparison.json").read_text())
+    algos = ("law", "tuned_law", "ppo", "residual_ppo")
+    assert {(r["env"], r["algo"]) for r in rows} == {(e, a) for e in envs for a in algos}
+    with open(report / "comparison.csv") as fh:
+        assert len(list(csv.DictReader(fh))) == len(rows)
+    sidecars = list((out / "runs").glob("*.json"))
+    assert len(sidecars) == len(envs) * len(algos) and not list((out / "runs").glob("*.error"))
+    assert "report:" in proc.stdout
+
+
+@pytest.mark.slow
+def test_bench_train_quick_prints_env_steps_per_second(tmp_path: Path) -> None:
+    pytest.importorskip("stable_baselines3")
     out = tmp_path / "bench"
-    proc = subprocess.run([sys.executable, str(SCRIPT), "--quick", "--out", str(out)], capture_output=True,
-                          text=True, timeout=900)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert (out / "bench_envs.md").is_file() and (out / "bench_envs.json").is_file()
+    proc = _run("bench_train.py", out)
+    lines = re.findall(r"^(\w+)\s+n_envs=\s*(\d+) threads=(\d+)\s+([\d.]+) k env-steps/s", proc.stdout, re.M)
+    assert sorted((task, int(n)) for task, n, _, _ in lines) == [("flocking", 8), ("flocking", 64), ("usv", 8),
+                                                                  ("usv", 64)]
+    assert all(float(rate) > 0 for *_, rate in lines)
+    rows = json.loads((out / "bench_train.json").read_text())
+    assert len(rows) == 4 and all(r["steps_per_s"] > 0 and 0 < r["rollout_share"] < 1 for r in rows)
+    assert (out / "bench_train.md").read_text() in proc.stdout
+
+
+@pytest.mark.slow
+def test_bench_envs_quick_measures_every_env(tmp_path: Path) -> None:
+    out = tmp_path / "envs"
+    proc = _run("bench_envs.py", out)
     res = json.loads((out / "bench_envs.json").read_text())
-    assert res["meta"]["quick"] is True
-    assert set(res["single"]["envs"]) == {"vnhc_gym/FlockingAlign-v0", "vnhc_gym/USVStream-v0"}
-    assert res["single"]["pendulum_us"] > 0
-    assert {r["n"] for r in res["vector"].values()} == {16, 256}
-    assert all(r["rollout_steps_per_s"] > 0 and r["sync_steps_per_s"] > 0 and r["cartpole_steps_per_s"] > 0
-               for r in res["vector"].values())
-    assert res["jit"]["import_gymnasium_s"] > 0 and len(res["jit"]["envs"]) == 2
-    assert all(len(r["reset_over_import_samples_s"]) == 1 for r in res["jit"]["envs"].values())
-    bound = res["usv_bound"]
-    assert bound["n"] == 256 and bound["cartpole_steps_per_s"] > 0
-    assert set(bound["rows"]) == {"random", "northeast", "rk4", "advance"}
-    assert all(r["steps_per_s"] > 0 for r in bound["rows"].values())
-    assert res["floors"] and all(isinstance(f["pass"], bool) for f in res["floors"])
-    text = (out / "bench_envs.md").read_text()
-    assert "Pendulum-v1" in text and "CartPole" in text and ("PASS" in text or "FAIL" in text)
-    assert "RK4 alone" in text
-    assert text in proc.stdout  # the printed table is the written one
+    assert set(res["single_us"]) == {"Pendulum-v1", *env_ids("v1")}
+    assert all(v > 0 for v in res["single_us"].values())
+    assert {(r["env"], r["n"]) for r in res["vector"]} == {(e, n) for e in env_ids("v1") for n in (16, 256)}
+    assert all(r["native"] > 0 and r["sync"] > 0 and r["cartpole"] > 0 for r in res["vector"])
+    assert (out / "bench_envs.md").read_text() in proc.stdout

@@ -1,4 +1,5 @@
-"""Tests of ``vnhc-gym benchmark`` (vnhc_gym.benchmark)."""
+"""Tests of ``vnhc-gym benchmark`` (vnhc_gym.benchmark): the console command's files, every registered
+environment in them, and its numbers against independent evaluations."""
 
 from __future__ import annotations
 
@@ -7,88 +8,118 @@ import json
 import shutil
 import subprocess
 import sys
+from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
+from scipy import stats as sps
 
 import vnhc_gym  # noqa: F401
 from vnhc_gym import benchmark
-from vnhc_gym.cli import main
+from vnhc_gym.baselines import GeometricController, ZeroPolicy
+from vnhc_gym.evaluation import TEST_SEED, evaluate
+from vnhc_gym.tasks import TASKS, env_id, env_ids
 
-OUTPUTS = ("benchmark.csv", "benchmark_episodes.csv", "benchmark.md", "benchmark.json", "phi_flocking.png",
-           "phi_usv.png")
+QUICK_POLICIES = ["zero", "random", "law", "inloop"]
 
 
-def _check_outputs(out, envs=("flocking", "usv"), n_scenarios=6, n_policies=5) -> None:
-    for name in OUTPUTS:
-        if name.startswith("phi_") and name[4:-4] not in envs:
-            continue
+def _command() -> list[str]:
+    exe = shutil.which("vnhc-gym")
+    return [exe] if exe else [sys.executable, "-m", "vnhc_gym.cli"]
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, subprocess.CompletedProcess]:
+    out = tmp_path_factory.mktemp("bench") / "tmp"
+    proc = subprocess.run([*_command(), "benchmark", "--quick", "--out", str(out)], capture_output=True, text=True,
+                          timeout=600)
+    return out, proc
+
+
+def test_quick_benchmark_writes_its_files_for_every_env(quick: Any) -> None:
+    out, proc = quick
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    for name in ("benchmark.md", "benchmark.csv", "benchmark.json"):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
-    rows = list(csv.DictReader(open(out / "benchmark.csv")))
-    assert len(rows) == len(envs) * n_scenarios * n_policies
-    assert {"env", "scenario", "policy", "mean_abs_phi_iqm", "mean_abs_phi_ci_low", "return_iqm"} <= set(rows[0])
-    data = json.loads((out / "benchmark.json").read_text())
-    assert len(data["results"]) == len(rows)
-    assert "median_phi_series" in data["results"][0]
+    for entry in TASKS.values():
+        assert (out / f"phi_{entry.env_name}.png").is_file(), entry.env_name
+    with open(out / "benchmark.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert {r["env_id"] for r in rows} == set(env_ids("v1"))
+    expected = {(e, s, p) for e in env_ids("v1") for s in ("nominal", "noisy") for p in QUICK_POLICIES}
+    assert {(r["env_id"], r["scenario"], r["policy"]) for r in rows} == expected and len(rows) == len(expected)
     md = (out / "benchmark.md").read_text()
-    assert "| env | scenario | policy |" in md and "geometric-sampled" in md
+    assert all(f"**{e}**" in md for e in env_ids("v1"))
+    assert md in proc.stdout  # the printed tables are the written ones
+    data = json.loads((out / "benchmark.json").read_text())
+    assert data["settings"]["command"] == "vnhc-gym benchmark --quick"
+    assert data["settings"]["episodes"] == 3 and data["settings"]["max_time"] == 2.0
+    assert len(data["results"]) == len(rows)
+    assert all(r["seed"] == TEST_SEED and r["n_episodes"] == 3 for r in data["results"])
+    assert "Traceback" not in proc.stderr
 
 
-def test_cli_benchmark_quick_in_process(tmp_path, capsys) -> None:
-    out = tmp_path / "tmp"
-    assert main(["benchmark", "--quick", "--out", str(out), "--no-progress", "--no-zoo"]) == 0
-    _check_outputs(out)
-    printed = capsys.readouterr().out
-    assert "mean_abs_phi IQM [95% CI]" in printed and "| usv | coarse | geometric |" in printed
+@pytest.mark.parametrize("env", env_ids("v1"), ids=lambda e: e.removeprefix("vnhc_gym/"))
+def test_quick_benchmark_numbers_are_the_protocols(quick: Any, env: str) -> None:
+    out, proc = quick
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    with open(out / "benchmark.csv") as fh:
+        rows = {(r["env_id"], r["scenario"], r["policy"]): r for r in csv.DictReader(fh)}
+    kw = {"n_episodes": 3, "seed": TEST_SEED, "max_time": 2.0}
+    for scenario in ("nominal", "noisy"):
+        law = evaluate(GeometricController, env, scenario, **kw)
+        inloop = evaluate(ZeroPolicy, env, scenario, feedback="continuous", gain=5.0, **kw)
+        for name, res in (("law", law), ("inloop", inloop)):
+            row = rows[(env, scenario, name)]
+            for metric in ("mean_abs_phi", "mean_abs_phi_sf", "return"):
+                assert float(row[metric]) == pytest.approx(sps.trim_mean(res.metrics[metric], 0.25), rel=1e-9)
+    # The in-loop reference does not see the observation noise; the law does.
+    assert rows[(env, "noisy", "inloop")]["mean_abs_phi"] == rows[(env, "nominal", "inloop")]["mean_abs_phi"]
+    assert rows[(env, "noisy", "law")]["mean_abs_phi"] != rows[(env, "nominal", "law")]["mean_abs_phi"]
 
 
-@pytest.mark.skipif(shutil.which("vnhc-gym") is None, reason="console script not installed")
-def test_cli_benchmark_console_command(tmp_path) -> None:
-    out = tmp_path / "tmp"
-    proc = subprocess.run(["vnhc-gym", "benchmark", "--quick", "--out", str(out), "--no-progress",
-                           "--envs", "usv", "--scenarios", "nominal", "coarse", "--no-zoo"],
-                          capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    _check_outputs(out, envs=("usv",), n_scenarios=2)
-    assert "| usv | nominal | zero |" in proc.stdout
+def test_policies() -> None:
+    assert [p.name for p in benchmark.policies(quick=True, agents=False)] == QUICK_POLICIES
+    full = [p.name for p in benchmark.policies(quick=False, agents=False)]
+    assert full == ["zero", "random", "law", "law-sampled", "tuned_law", "observer", "adaptive", "inloop"]
+    assert [p.feedback for p in benchmark.policies(quick=True, agents=False)] == [None, None, None, "continuous"]
+    assert isinstance(benchmark.settings(), dict)
 
 
-def test_benchmark_agents_folder(tmp_path) -> None:
+def test_run_benchmark_and_outputs_in_process(tmp_path: Path) -> None:
+    specs = [p for p in benchmark.policies(quick=False, agents=False) if p.name in ("law-sampled", "observer")]
+    tasks = list(TASKS)
+    results = benchmark.run_benchmark(tasks, ["noisy"], specs, episodes=2, seed=TEST_SEED, max_time=1.0,
+                                      log=lambda s: None)
+    assert [(r.env_id, r.policy) for r in results] == [(env_id(t), p.name) for t in tasks for p in specs]
+    files = benchmark.write_outputs(results, tmp_path / "out", {"command": "test"})
+    assert all(Path(f).is_file() for f in files)
+    assert len([f for f in files if str(f).endswith(".png")]) == 0  # figures are of the nominal scenario
+    sampled = evaluate(lambda e: GeometricController(e, variant="sampled"), env_id(tasks[0]), "noisy", n_episodes=2,
+                       seed=TEST_SEED, max_time=1.0)
+    np.testing.assert_array_equal(results[0].metrics["mean_abs_phi"], sampled.metrics["mean_abs_phi"])
+
+
+@pytest.mark.slow
+def test_agents_of_a_zoo_run_on_their_own_task_only(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Shipped agents are ``<task>-<algo>`` files; an agent runs on its task's cells only, without a warning."""
     pytest.importorskip("stable_baselines3")
-    import gymnasium as gym
-    from stable_baselines3 import A2C, PPO
+    import warnings
 
-    from vnhc_gym.wrappers import ResidualAction
+    from vnhc_gym.training import TrainConfig, agents, train
 
-    agents = tmp_path / "agents"
-    agents.mkdir()
-    env = gym.make("vnhc_gym/USVStream-v0", disable_env_checker=True)
-    PPO("MlpPolicy", env, n_steps=32, batch_size=16, seed=0, device="cpu").save(agents / "usv-ppo.zip")
-    PPO("MlpPolicy", ResidualAction(env), n_steps=32, batch_size=16, seed=0, device="cpu").save(
-        agents / "usv-residual_ppo.zip")
-    A2C("MlpPolicy", env, seed=0, device="cpu").save(agents / "usv-a2c.zip")  # plain SB3 loading path
-    (agents / "usv-residual_ppo.json").write_text(json.dumps({"algo": "PPO", "residual": {"scale": 0.1}}))
-    (agents / "notes.zip").write_bytes(b"not an agent")
-    out = tmp_path / "out"
-    with pytest.warns(UserWarning, match="pickle"):
-        code = main(["benchmark", "--quick", "--out", str(out), "--no-progress", "--envs", "usv", "--scenarios",
-                     "nominal", "saturated", "--policies", "zero", "--agents", str(agents), "--no-figures",
-                     "--no-zoo"])
-    assert code == 0
-    rows = list(csv.DictReader(open(out / "benchmark.csv")))
-    assert sorted({r["policy"] for r in rows}) == ["a2c", "ppo", "residual_ppo", "zero"]
-    assert len(rows) == 2 * 4
-
-
-def test_no_agents_and_missing_sb3_are_skipped(tmp_path, monkeypatch) -> None:
-    assert benchmark.find_agents([tmp_path / "missing"], log=lambda m: None) == []
-    (tmp_path / "flocking-ppo.zip").write_bytes(b"x")
-    monkeypatch.setitem(sys.modules, "stable_baselines3", None)  # import fails
-    messages = []
-    assert benchmark.find_agents([tmp_path], log=messages.append) == []
-    assert any("not installed" in m for m in messages)
-
-
-def test_bad_arguments() -> None:
-    with pytest.raises(SystemExit):
-        main(["benchmark", "--scenarios", "stormy"])
-    assert main(["benchmark", "--episodes", "0", "--no-progress"]) == 2
+    task = list(TASKS)[0]
+    zoo = tmp_path / "zoo"
+    train(TrainConfig(algo="ppo", env=task, n_timesteps=512, overrides={"n_envs": 8, "n_steps": 64,
+                                                                          "batch_size": 128},
+                      out=str(zoo), eval_points=1, eval_episodes=1, test_episodes=1, threads=1, name=f"{task}-ppo"))
+    monkeypatch.setattr(agents, "ZOO_DIR", zoo)
+    specs = [p for p in benchmark.policies(quick=True, agents=True) if p.name in ("law", "ppo")]
+    assert [p.name for p in specs] == ["law", "ppo"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", agents.UntrustedFileWarning)
+        results = benchmark.run_benchmark(list(TASKS)[:2], ["nominal"], specs, episodes=2, seed=TEST_SEED,
+                                          max_time=1.0, log=lambda s: None)
+    assert [(r.env_id, r.policy) for r in results] == [(env_id(task), "law"), (env_id(task), "ppo"),
+                                                       (env_id(list(TASKS)[1]), "law")]

@@ -243,9 +243,6 @@ def test_layout_rejects_bad_shapes_and_indices() -> None:
         _layout(param_map=np.array([[0, 2, 4], [1, 2, 3]]))
 
 
-@pytest.mark.xfail(strict=True, raises=pytest.fail.Exception,
-                   reason="FleetLayout does not check that each unit velocity sits at its coordinate's index + n; "
-                          "the template's RK4 needs d q_j/dt = s[n + j]")
 def test_layout_rejects_velocities_not_at_their_coordinates() -> None:
     sm = flocking_layout(3).state_map.copy()
     sm[[0, 1], 4] = sm[[1, 0], 4]  # copy 0's xd is follower 2's, copy 1's is follower 1's
@@ -253,9 +250,6 @@ def test_layout_rejects_velocities_not_at_their_coordinates() -> None:
         _layout(state_map=sm)
 
 
-@pytest.mark.xfail(strict=True, raises=pytest.fail.Exception,
-                   reason="ConstrainedSystem.fleet does not check the layout against the unit: a param_map "
-                          "narrower than the unit's parameters is accepted (the kernels then read past it)")
 def test_fleet_rejects_a_layout_that_does_not_fit_its_unit(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("VNHC_GYM_CACHE_DIR", str(tmp_path))
     unit_model = ConstrainedSystem.from_recipe(("flocking", 2), partial(flocking_system, 2),

@@ -1,5 +1,6 @@
-"""The per-row SplitMix64 streams (vnhc_gym.envs._random): distribution and independence checks
-against textbook facts, and the stream isolation the vector envs rely on."""
+"""The per-row SplitMix64 streams of :mod:`vnhc_gym.kernels` (what a task's compiled hooks may use):
+distribution and independence checks against textbook facts, the parameter-mismatch draw, and the
+stream isolation the vector envs rely on."""
 
 from __future__ import annotations
 
@@ -8,7 +9,22 @@ import pytest
 from numba import njit
 from scipy import stats
 
-from vnhc_gym.envs._random import entropy_states, next_u64, normal_pair, seed_states, sign, uniform, uniform_ab
+import vnhc_gym.kernels as public_kernels
+from vnhc_gym.kernels import (
+    draw_mismatch,
+    entropy_states,
+    next_u64,
+    normal_pair,
+    seed_states,
+    sign,
+    uniform,
+    uniform_ab,
+)
+from vnhc_gym.mechanics import kernels as core_kernels
+from vnhc_gym.tasks import TASKS
+
+#: SplitMix64's increment: every draw adds it to the state (mod 2**64).
+GAMMA = 0x9E3779B97F4A7C15
 
 
 @njit(cache=True)
@@ -91,13 +107,68 @@ def test_seeds_give_distinct_reproducible_uncorrelated_streams() -> None:
     assert len(np.unique(entropy_states(64))) == 64
 
 
-@pytest.mark.parametrize("env_id", ["vnhc_gym/FlockingAlign-v0", "vnhc_gym/USVStream-v0"])
-def test_a_row_draws_only_from_its_own_stream(env_id: str) -> None:
-    """Resetting rows together or one by one, in any order, gives every row the same episode:
-    what makes a vector env equal N single envs."""
-    from vnhc_gym.envs.vector import FlockingAlignVectorEnv, USVStreamVectorEnv
+@njit(cache=True)
+def _mismatch(state, r, nominal, mask, delta, k):
+    out = np.empty((k, nominal.shape[0]))
+    for i in range(k):
+        draw_mismatch(state, r, nominal, mask, delta, out[i])
+    return out
 
-    cls = FlockingAlignVectorEnv if "Flocking" in env_id else USVStreamVectorEnv
+
+def test_draw_mismatch_scales_masked_entries_uniformly() -> None:
+    """out = nominal * U(1 - delta, 1 + delta) on masked entries, one draw each, nominal elsewhere."""
+    nominal = np.array([2.0, 10.0, -4.0, 0.5])
+    mask = np.array([True, False, True, True])
+    state = seed_states([9])
+    start = int(state[0])
+    k = 50_000
+    out = _mismatch(state, 0, nominal, mask, 0.3, k)
+    assert int(state[0]) == (start + 3 * k * GAMMA) % 2**64  # exactly one draw per masked entry
+    np.testing.assert_array_equal(out[:, 1], 10.0)
+    factors = out[:, mask] / nominal[mask]
+    assert factors.min() >= 0.7 and factors.max() < 1.3
+    for col in factors.T:
+        assert stats.kstest(col, "uniform", args=(0.7, 0.6)).pvalue > 1e-3
+    # The draws are the row's uniforms in order: entry j of draw i is 1 + 0.3 (2 u - 1).
+    u = _uniforms(seed_states([9]), 0, 3 * k).reshape(k, 3)
+    np.testing.assert_allclose(factors, 1.0 + 0.3 * (2.0 * u - 1.0), rtol=1e-15)
+
+
+def test_draw_mismatch_without_mismatch_draws_nothing() -> None:
+    nominal = np.array([2.0, 10.0])
+    state = seed_states([4])
+    start = state.copy()
+    out = _mismatch(state, 0, nominal, np.array([True, True]), 0.0, 10)
+    np.testing.assert_array_equal(out, np.tile(nominal, (10, 1)))
+    np.testing.assert_array_equal(state, start)
+    out = _mismatch(state, 0, nominal, np.array([False, False]), 0.5, 10)
+    np.testing.assert_array_equal(out, np.tile(nominal, (10, 1)))
+    np.testing.assert_array_equal(state, start)
+
+
+def test_a_row_draws_from_its_own_state_only() -> None:
+    states = seed_states([1, 2, 3])
+    before = states.copy()
+    _uniforms(states, 1, 5)
+    assert states[0] == before[0] and states[2] == before[2]
+    assert int(states[1]) == (int(before[1]) + 5 * GAMMA) % 2**64
+
+
+def test_public_kernels_module() -> None:
+    """The sine and cosine a task may use are the generated code's own (same bits)."""
+    assert public_kernels.psin is core_kernels.psin and public_kernels.pcos is core_kernels.pcos
+    assert public_kernels.psincos is core_kernels.psincos
+    assert set(public_kernels.__all__) >= {"draw_mismatch", "entropy_states", "next_u64", "normal_pair", "pcos",
+                                           "psin", "psincos", "seed_states", "sign", "uniform", "uniform_ab"}
+
+
+@pytest.mark.parametrize("task", sorted(TASKS))
+def test_a_row_draws_only_from_its_own_stream(task: str) -> None:
+    """Resetting rows together or one by one, in any order, gives every row the same episode:
+    what makes a vector env equal N single envs.  (Every registered task.)"""
+    entry = TASKS[task]
+    cls = getattr(entry.load(), f"{entry.env_name}VectorEnv")
+
     together = cls(4, scenario="mismatch")
     together.reset(seed=[10, 11, 12, 13])
     apart = cls(4, scenario="mismatch")
@@ -107,6 +178,9 @@ def test_a_row_draws_only_from_its_own_stream(env_id: str) -> None:
         mask[:] = False
         mask[i] = True
         apart.reset(seed=[10 + j if j == i else None for j in range(4)], options={"reset_mask": mask})
-    np.testing.assert_array_equal(together.task.state, apart.task.state)
-    np.testing.assert_array_equal(together.task.params_true, apart.task.params_true)
-    np.testing.assert_array_equal(together.task.rng, apart.task.rng)
+    a, b = together.batch.buf, apart.batch.buf
+    np.testing.assert_array_equal(a.state, b.state)
+    np.testing.assert_array_equal(a.params_true, b.params_true)
+    np.testing.assert_array_equal(a.rng, b.rng)
+    assert not np.array_equal(a.params_true, a.params_nominal)  # the mismatch was drawn
+    assert len({tuple(row) for row in a.state}) == 4  # four different episodes

@@ -193,7 +193,8 @@ def _drive_vector(env: str, n: int, mode: AutoresetMode, base_name: str, steps: 
     observations, infos = [obs], []
     for t in range(steps):
         b, _ = base.predict(obs, episode_start=starts)
-        a = np.clip(b.astype(np.float64) + 0.2 * np.clip(residual(t, obs), -1, 1), -1, 1).astype(np.float32)
+        r = np.asarray(residual(t, obs)).astype(np.float32).astype(np.float64)  # what an agent's float32 action is
+        a = np.clip(b.astype(np.float64) + 0.2 * np.clip(r, -1, 1), -1, 1).astype(np.float32)
         obs, _, term, trunc, info = venv.step(a)
         done = term | trunc
         if mode is AutoresetMode.SAME_STEP:

@@ -173,7 +173,7 @@ def finish_row(r: int, buf: Buffers, cfg: StepConfig) -> None:
         cost += buf.action[r, b] * buf.action[r, b]
     cost = cfg.action_cost * cost / buf.action.shape[1]
     # An observation that is not finite (a state beyond what the task can observe) ends the episode
-    # like a non-finite state; the previous observation stays (obs32 is not overwritten below).
+    # like a non-finite state; then, as for any non-finite state, the previous observation stays.
     obs_finite = True
     for j in range(buf.obs.shape[1]):
         if not abs(buf.obs[r, j]) < np.inf:
@@ -191,7 +191,7 @@ def finish_row(r: int, buf: Buffers, cfg: StepConfig) -> None:
         if nonfinite or not rew == rew:
             rew = -cfg.reward_clip
         buf.reward[r] = min(max(rew, -cfg.reward_clip), 0.0)
-    if obs_finite:
+    if obs_finite and not nonfinite:
         for j in range(buf.obs.shape[1]):
             buf.obs32[r, j] = buf.obs[r, j]
 

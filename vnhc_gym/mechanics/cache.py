@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
+import io
 import os
 import pickle
+import pickletools
 import sys
 import tempfile
 import threading
@@ -104,6 +106,7 @@ def _write(path: Path, source: str) -> None:
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(_HEADER + _digest(source) + "\n" + source)
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; a shared cache folder needs it readable
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -125,13 +128,49 @@ def _check_text(path: Path) -> str | None:
     return None
 
 
+def _machine_code_dir(path: Path) -> Path:
+    """Where numba keeps the machine code of the module at ``path``: beside it, or under
+    ``NUMBA_CACHE_DIR`` when that is set (numba's own rule for the sub-folder)."""
+    from numba.core import config
+    from numba.core.caching import _CacheLocator
+
+    if config.CACHE_DIR:
+        return Path(config.CACHE_DIR) / _CacheLocator.get_suitable_cache_subpath(str(path))
+    return path.parent / "__pycache__"
+
+
 def _machine_code_files(path: Path) -> list[Path]:
-    return sorted((path.parent / "__pycache__").glob(f"{path.stem}.*"))
+    return sorted(_machine_code_dir(path).glob(f"{path.stem}.*"))
+
+
+def _complete_pickles(data: bytes, count: int) -> bool:
+    """Whether ``data`` holds ``count`` complete, well-formed pickles (read opcode by opcode, never
+    executed, so this is cheap and safe)."""
+    stream = io.BytesIO(data)
+    try:
+        for _ in range(count):
+            for _opcode, _arg, _pos in pickletools.genops(stream):
+                pass
+    except Exception:  # noqa: BLE001 - any parse failure means a damaged file
+        return False
+    return stream.tell() == len(data)
 
 
 def _check_machine_code(path: Path) -> str | None:
-    """Why numba's cached index of ``path`` cannot be read (None if it can, or there is none)."""
-    for index in (p for p in _machine_code_files(path) if p.suffix == ".nbi"):
+    """Why numba's cached files of ``path`` (index and data) cannot be read (None if they can, or
+    there are none)."""
+    for file in _machine_code_files(path):
+        if file.suffix not in (".nbi", ".nbc"):
+            continue
+        try:
+            data = file.read_bytes()
+        except OSError as exc:
+            return f"numba file {file.name} is unreadable ({exc})"
+        # An index is numba's version tag then the index; a data file one pickle.
+        if not _complete_pickles(data, 2 if file.suffix == ".nbi" else 1):
+            return f"numba file {file.name} is damaged"
+    if any(p.suffix == ".nbi" for p in _machine_code_files(path)):
+        index = next(p for p in _machine_code_files(path) if p.suffix == ".nbi")
         try:
             with open(index, "rb") as fh:
                 pickle.load(fh)  # numba's version tag

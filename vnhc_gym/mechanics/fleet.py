@@ -91,6 +91,9 @@ class FleetLayout:
         covered = np.concatenate([owned, shared[0]])
         if np.unique(owned).size != owned.size or np.unique(covered).size != 2 * self.n:
             raise ValueError("every fleet state entry must belong to exactly one copy or to the shared part")
+        if not np.array_equal(sm[:, nu:], sm[:, :nu] + self.n):
+            raise ValueError("state_map must put each unit velocity at its coordinate's index + n (the state is "
+                             "(q, qd))")
 
     @property
     def replicas(self) -> int:

@@ -210,6 +210,11 @@ class ConstrainedSystem:
         """
         from vnhc_gym.mechanics import fleet as _fleet
 
+        if layout.state_map.shape[1] != 2 * unit.n or layout.own.shape[0] != unit.n or \
+                layout.param_map.shape[1] != len(unit.param_names):
+            raise ValueError(f"the layout does not fit the unit {unit.name!r}: state_map needs {2 * unit.n} columns "
+                             f"(got {layout.state_map.shape[1]}), own {unit.n} entries (got {layout.own.shape[0]}), "
+                             f"param_map {len(unit.param_names)} columns (got {layout.param_map.shape[1]})")
         self = cls.__new__(cls)
         self.singular_tol = _check_tol(singular_tol)
         self._recipe = ("fleet", layout.name, layout.replicas)

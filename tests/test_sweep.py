@@ -1,0 +1,265 @@
+"""Tests of vnhc_gym.sweep: a tiny grid end to end (2 tasks x 1 scenario x 2 seeds, a few thousand
+steps per learned run), resuming, failures, the report, and the executors.
+
+The numbers in the report are checked against the run files and against independent evaluations
+of the law on the test seeds; resuming is checked by counting calls to ``run_one``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy import stats as sps
+
+pytest.importorskip("stable_baselines3")
+
+import vnhc_gym.evaluation  # noqa: E402
+import vnhc_gym.evaluation.protocol  # noqa: E402
+from vnhc_gym import sweep  # noqa: E402
+from vnhc_gym.baselines import GeometricController  # noqa: E402
+from vnhc_gym.baselines.tuning import CLASSICAL  # noqa: E402
+from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate  # noqa: E402
+from vnhc_gym.sweep import RunSpec, grid, report, run_sweep, status  # noqa: E402
+from vnhc_gym.tasks import TASKS, env_id  # noqa: E402
+
+ENVS = list(TASKS)[:2]  # two registered tasks
+TINY = {"n_envs": 8, "n_steps": 64, "batch_size": 128}
+BAD = (("learning_rate", "not-a-number"),)
+
+
+def _specs() -> list[RunSpec]:
+    return grid(ENVS, ["nominal"], ["law", "ppo"], [0, 1], 2048, overrides=TINY, test_episodes=3, eval_episodes=3)
+
+
+def _bad_spec() -> RunSpec:
+    return RunSpec("ppo", ENVS[0], "nominal", 0, 2048, BAD, test_episodes=3, eval_episodes=3)
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[RunSpec], dict[str, list[str]], list[str]]:
+    out = tmp_path_factory.mktemp("sweep")
+    lines: list[str] = []
+    result = run_sweep([*_specs(), _bad_spec()], out, log=lines.append)
+    return out, _specs(), result, lines
+
+
+def _copy(src: Path, tmp_path: Path) -> Path:
+    dest = tmp_path / "copy"
+    shutil.copytree(src, dest)
+    return dest
+
+
+def _test_metrics(out: Path, spec: RunSpec) -> dict[str, list[float]]:
+    return json.loads((out / "runs" / f"{spec.stem}.json").read_text())["test"]["metrics"]
+
+
+class _Calls:
+    """Wraps run_one: records the stems it runs (and runs them unless ``refuse``)."""
+
+    def __init__(self, real: Any, refuse: bool = False) -> None:
+        self.real, self.refuse, self.stems = real, refuse, []
+
+    def __call__(self, spec: RunSpec, out: Any, threads: int = 1) -> Any:
+        self.stems.append(spec.stem)
+        if self.refuse:
+            raise AssertionError(f"{spec.stem} should not run again")
+        return self.real(spec, out, threads)
+
+
+# --------------------------------------------------------------------------- specs
+def test_grid_and_run_specs() -> None:
+    specs = grid(["flocking", "usv"], ["nominal", "noisy"], ["law", "observer", "ppo", "residual_ppo"], [0, 1, 2],
+                 1000, seeds_by_scenario={"noisy": [5]})
+    # Classical baselines: one run per cell; learned: one per seed (the cell's own seeds).
+    assert len(specs) == 2 * (2 + 2 * 3) + 2 * (2 + 2 * 1)
+    noisy_ppo = [s for s in specs if s.scenario == "noisy" and s.algo == "ppo"]
+    assert sorted(s.seed for s in noisy_ppo) == [5, 5]
+    assert len({s.stem for s in specs}) == len(specs)
+    a = RunSpec("ppo", "usv", seed=1, n_timesteps=10)
+    assert a.key() == RunSpec("ppo", "usv", seed=1, n_timesteps=10).key()
+    assert a.key() != RunSpec("ppo", "usv", seed=2, n_timesteps=10).key()
+    assert a.key() != RunSpec("ppo", "usv", seed=1, n_timesteps=20).key()
+    assert a.stem.startswith("usv-nominal-ppo-s1-") and a.learned
+    law = RunSpec("law", "usv", seed=1, n_timesteps=10)
+    assert not law.learned and "-s1" not in law.stem
+    assert law.key() == RunSpec("law", "usv", seed=3, n_timesteps=99).key()  # deterministic: no seed, no budget
+    assert law.key() != RunSpec("law", "usv", test_episodes=5).key()
+    with pytest.raises(ValueError, match="algo"):
+        RunSpec("sac", "usv")
+
+
+# --------------------------------------------------------------------------- a sweep end to end
+@pytest.mark.slow
+def test_sweep_runs_and_records_a_failure(swept: Any) -> None:
+    out, specs, result, lines = swept
+    bad = _bad_spec()
+    assert sorted(result["done"]) == sorted(s.stem for s in specs)
+    assert result["failed"] == [bad.stem] and result["skipped"] == []
+    assert any(bad.stem in line and "failed" in line for line in lines)
+    error = (out / "runs" / f"{bad.stem}.error").read_text()
+    assert "Traceback" in error and "not-a-number" in error
+    assert status(bad, out) == "failed" and not (out / "runs" / f"{bad.stem}.json").exists()
+    for spec in specs:
+        assert status(spec, out) == "done"
+        side = json.loads((out / "runs" / f"{spec.stem}.json").read_text())
+        assert side["spec"]["algo"] == spec.algo and side["spec"]["seed"] == spec.seed
+        assert side["test"]["seed"] == TEST_SEED and side["test"]["n_episodes"] == 3
+        assert (out / "runs" / f"{spec.stem}.zip").exists() == spec.learned
+    assert status(RunSpec("law", "usv", "noisy"), out) == "todo"
+
+
+@pytest.mark.slow
+def test_the_law_run_is_the_law_on_the_test_seeds(swept: Any) -> None:
+    out, specs, _, _ = swept
+    for spec in specs:
+        if spec.algo != "law":
+            continue
+        independent = evaluate(GeometricController, env_id(spec.env), "nominal", n_episodes=3, seed=TEST_SEED)
+        for name, values in _test_metrics(out, spec).items():
+            np.testing.assert_allclose(values, independent.metrics[name], rtol=1e-12, atol=1e-15, err_msg=name)
+
+
+@pytest.mark.slow
+def test_report_files_and_numbers(swept: Any, tmp_path: Path) -> None:
+    out = _copy(swept[0], tmp_path)
+    specs = swept[1]
+    lines: list[str] = []
+    rep = report(out, reps=300, log=lines.append)
+    dest = out / "report"
+    for name in ("comparison.md", "comparison.csv", "comparison.json", "performance_profile.png",
+                 *(f"learning_curves_{env}.png" for env in ENVS)):
+        assert (dest / name).is_file() and (dest / name).stat().st_size > 0, name
+    assert sorted(rep["figures"]) == sorted(str(p) for p in dest.glob("*.png"))
+    assert not any("WARNING" in line for line in lines)  # one code version
+    rows = json.loads((dest / "comparison.json").read_text())
+    assert rows == json.loads(json.dumps(rep["rows"]))
+    assert {(r["env"], r["algo"]) for r in rows} == {(e, a) for e in ENVS for a in ("law", "ppo")}
+    for row in rows:
+        cell = [s for s in specs if s.env == row["env"] and s.algo == row["algo"]]
+        pooled = np.concatenate([_test_metrics(out, s)["mean_abs_phi_sf"] for s in cell])
+        assert row["runs"] == len(cell) == (2 if row["algo"] == "ppo" else 1)
+        assert row["iqm"] == pytest.approx(sps.trim_mean(pooled, 0.25), rel=1e-12)
+        assert row["low"] <= row["iqm"] <= row["high"]
+        assert row["best_classical"] == "law"
+        if row["algo"] == "ppo":
+            assert 0.0 <= row["poi_low"] <= row["poi"] <= row["poi_high"] <= 1.0
+            assert row["parity_runs"].endswith("/2")
+    with open(dest / "comparison.csv") as fh:
+        table = list(csv.DictReader(fh))
+    assert [(r["env"], r["algo"]) for r in table] == [(r["env"], r["algo"]) for r in rows]
+    md = (dest / "comparison.md").read_text()
+    assert md.count("\n") == len(rows) + 2 and "law (best)" in md
+    assert all(f"| {env} | nominal |" in md for env in ENVS)
+
+
+@pytest.mark.slow
+def test_report_warns_about_mixed_code_versions(swept: Any, tmp_path: Path) -> None:
+    out = _copy(swept[0], tmp_path)
+    side = next((out / "runs").glob("*.json"))
+    data = json.loads(side.read_text())
+    data["code"] = "0" * 16
+    side.write_text(json.dumps(data))
+    lines: list[str] = []
+    rep = report(out, reps=100, log=lines.append)
+    assert len(rep["codes"]) == 2 and any("WARNING" in line for line in lines)
+
+
+# --------------------------------------------------------------------------- resuming
+@pytest.mark.slow
+def test_rerunning_does_no_training(swept: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    out = _copy(swept[0], tmp_path)
+    specs = swept[1]
+    before = {p.name: p.stat().st_mtime_ns for p in (out / "runs").iterdir()}
+    calls = _Calls(sweep.run_one, refuse=True)
+    monkeypatch.setattr(sweep, "run_one", calls)
+    result = run_sweep(specs, out, log=lambda s: None)
+    assert calls.stems == [] and result["done"] == [] and result["failed"] == []
+    assert sorted(result["skipped"]) == sorted(s.stem for s in specs)
+    # Not even the failed run, when asked not to retry failures.
+    result = run_sweep([*specs, _bad_spec()], out, rerun_failed=False, log=lambda s: None)
+    assert calls.stems == [] and len(result["skipped"]) == len(specs) + 1
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "runs").iterdir()} == before
+
+
+@pytest.mark.slow
+def test_a_failed_run_is_retried_alone(swept: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    out = _copy(swept[0], tmp_path)
+    calls = _Calls(sweep.run_one)
+    monkeypatch.setattr(sweep, "run_one", calls)
+    result = run_sweep([*swept[1], _bad_spec()], out, log=lambda s: None)
+    assert calls.stems == [_bad_spec().stem] and result["failed"] == [_bad_spec().stem]
+
+
+@pytest.mark.slow
+def test_deleting_a_sidecar_reruns_only_that_run(swept: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    out = _copy(swept[0], tmp_path)
+    specs = swept[1]
+    victim = next(s for s in specs if s.algo == "ppo" and s.seed == 1)
+    old = _test_metrics(out, victim)
+    (out / "runs" / f"{victim.stem}.json").unlink()
+    assert status(victim, out) == "todo"
+    calls = _Calls(sweep.run_one)
+    monkeypatch.setattr(sweep, "run_one", calls)
+    result = run_sweep(specs, out, log=lambda s: None)
+    assert calls.stems == [victim.stem] and result["done"] == [victim.stem]
+    assert status(victim, out) == "done"
+    assert _test_metrics(out, victim) == old  # same seed, same numbers
+
+
+# --------------------------------------------------------------------------- classical runs
+def test_a_classical_run_tunes_on_validation_seeds_and_tests_on_test_seeds(tmp_path: Path,
+                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[tuple[int, int]] = []
+
+    def recording(policy: Any, env: str, scenario: str = "nominal", n_episodes: int = 10, seed: int = TEST_SEED,
+                  **kwargs: Any) -> Any:
+        calls.append((seed, n_episodes))
+        return evaluate(policy, env, scenario, n_episodes=n_episodes, seed=seed, **{**kwargs, "max_time": 1.0})
+
+    monkeypatch.setattr(vnhc_gym.evaluation, "evaluate", recording)
+    monkeypatch.setattr(vnhc_gym.evaluation.protocol, "evaluate", recording)
+    spec = RunSpec("tuned_law", "usv", "nominal", test_episodes=4, eval_episodes=2)
+    meta = sweep.run_one(spec, tmp_path)
+    n_settings = len(CLASSICAL["tuned_law"][1]["gain"])
+    assert len(calls) == n_settings + 1
+    assert all(VALIDATION_SEED <= s and s + n - 1 < TEST_SEED and n == 2 for s, n in calls[:-1])
+    assert calls[-1] == (TEST_SEED, 4)
+    best = min(meta["tuning"], key=lambda row: row["score"])
+    assert meta["settings"] == {"gain": best["gain"]} and meta["validation_score"] == best["score"]
+    assert status(spec, tmp_path) == "done"
+
+
+def test_local_worker_processes_give_the_same_numbers(tmp_path: Path) -> None:
+    specs = grid(ENVS, ["nominal"], ["law"], [0], 1, test_episodes=3, eval_episodes=2)
+    run_sweep(specs, tmp_path / "serial", log=lambda s: None)
+    result = run_sweep(specs, tmp_path / "pool", jobs=2, log=lambda s: None)
+    assert sorted(result["done"]) == sorted(s.stem for s in specs)
+    for spec in specs:
+        assert _test_metrics(tmp_path / "pool", spec) == _test_metrics(tmp_path / "serial", spec)
+
+
+def test_unknown_executor() -> None:
+    with pytest.raises(ValueError, match="executor"):
+        run_sweep([RunSpec("law", "usv")], "unused-folder", executor="slurm", log=lambda s: None)
+
+
+# --------------------------------------------------------------------------- Ray (optional)
+@pytest.mark.slow
+def test_ray_gives_the_local_numbers(swept: Any, tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    out, specs, _, _ = swept
+    subset = [s for s in specs if s.seed == 0 and s.env == ENVS[0]]  # the law and one PPO run
+    lines: list[str] = []
+    result = run_sweep([*subset, _bad_spec()], tmp_path / "ray", executor="ray", threads=1, retries=0,
+                       log=lines.append)
+    assert sorted(result["done"]) == sorted(s.stem for s in subset)
+    assert result["failed"] == [_bad_spec().stem]
+    assert "not-a-number" in (tmp_path / "ray" / "runs" / f"{_bad_spec().stem}.error").read_text()
+    for spec in subset:
+        assert _test_metrics(tmp_path / "ray", spec) == _test_metrics(out, spec), spec.stem

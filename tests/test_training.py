@@ -1,0 +1,243 @@
+"""Tests of vnhc_gym.training: tiny training runs (PPO, residual PPO, PPO with a history of
+observations), their files, the loaded agents as policies, and the shipped agents.
+
+A run is checked against what it claims: re-evaluating the saved agent on the recorded test seeds
+gives the recorded test numbers, the untrained residual agent's validation is the base law's own
+evaluation on the validation seeds, and the sidecar's fingerprint is the package's.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+pytest.importorskip("torch")
+
+import gymnasium as gym  # noqa: E402
+
+import vnhc_gym  # noqa: E402
+from vnhc_gym.baselines import GeometricController  # noqa: E402
+from vnhc_gym.evaluation import METRICS, TEST_SEED, VALIDATION_SEED, evaluate  # noqa: E402
+from vnhc_gym.tasks import TASKS, env_ids  # noqa: E402
+from vnhc_gym.training import (  # noqa: E402
+    ALGOS,
+    AgentPolicy,
+    TrainConfig,
+    code_fingerprint,
+    list_zoo,
+    load_agent,
+    resolve_env_id,
+    train,
+)
+from vnhc_gym.training.agents import ZOO_DIR, UntrustedFileWarning  # noqa: E402
+
+ENVS = env_ids("v1")
+TINY = {"n_envs": 8, "n_steps": 64, "batch_size": 128}
+#: variant -> (algo, extra overrides)
+VARIANTS = {"ppo": ("ppo", {}), "residual_ppo": ("residual_ppo", {}), "history": ("ppo", {"frame_stack": 4})}
+
+
+def _short(e: str) -> str:
+    return e.removeprefix("vnhc_gym/")
+
+
+def _task_name(env: str) -> str:
+    return next(name for name, entry in TASKS.items() if f"vnhc_gym/{entry.env_name}-v1" == env)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, str], tuple[Path, dict[str, Any]]]:
+    """One tiny run of each variant on each registered task (about 2 000 steps each)."""
+    out = tmp_path_factory.mktemp("runs")
+    done = {}
+    for env in ENVS:
+        for variant, (algo, extra) in VARIANTS.items():
+            cfg = TrainConfig(algo=algo, env=_task_name(env), n_timesteps=2000, overrides={**TINY, **extra},
+                              out=str(out), eval_points=2, eval_episodes=3, test_episodes=3, threads=1,
+                              name=f"{_task_name(env)}-{variant}")
+            lines: list[str] = []
+            meta = train(cfg, log=lines.append)
+            assert lines and all(cfg.name in line for line in lines)
+            done[(env, variant)] = (out / f"{cfg.name}.zip", meta)
+    return done
+
+
+CASES = [(e, v) for e in ENVS for v in VARIANTS]
+
+
+def _case_id(case: tuple[str, str]) -> str:
+    return f"{_short(case[0])}-{case[1]}"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", CASES, ids=_case_id)
+def test_a_run_writes_the_model_and_its_sidecar(runs: dict, case: tuple[str, str]) -> None:
+    path, meta = runs[case]
+    env, variant = case
+    assert path.is_file() and path.stat().st_size > 0
+    side = json.loads(path.with_suffix(".json").read_text())
+    assert side == json.loads(json.dumps(meta))  # the returned sidecar is the written one
+    assert side["env_id"] == env and side["scenario"] == "nominal" and side["algo"] == VARIANTS[variant][0]
+    assert side["n_envs"] == 8 and side["n_timesteps"] == 2000 and side["seed"] == 0
+    assert side["code"] == code_fingerprint() and side["version"] == vnhc_gym.__version__
+    assert side["frame_stack"] == (4 if variant == "history" else 1)
+    assert (side["residual"] is not None) == (variant == "residual_ppo")
+    # The learning curve: validation at step 0, then along the run, to its end.
+    curve = side["curve"]
+    steps = [p["steps"] for p in curve]
+    assert steps[0] == 0 and steps == sorted(steps) and steps[-1] >= 2000
+    assert all(np.isfinite(p["mean_abs_phi_sf"]) and p["wall"] >= 0 for p in curve)
+    assert side["best_steps"] in steps
+    assert min(p["mean_abs_phi_sf"] for p in curve) == next(p["mean_abs_phi_sf"] for p in curve
+                                                             if p["steps"] == side["best_steps"])
+    # The test summary: held-out seeds, every metric, IQM with its interval.
+    test = side["test"]
+    assert test["seed"] == TEST_SEED and test["n_episodes"] == 3
+    assert set(test["metrics"]) == set(METRICS) and all(len(v) == 3 for v in test["metrics"].values())
+    for name in METRICS:
+        low, point, high = test["summary"][name][1], test["summary"][name][0], test["summary"][name][2]
+        assert low <= point <= high
+    assert side["steps_per_second"] > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", CASES, ids=_case_id)
+def test_the_loaded_agent_reproduces_the_recorded_test(runs: dict, case: tuple[str, str]) -> None:
+    path, meta = runs[case]
+    with pytest.warns(UntrustedFileWarning, match="pickle"):
+        agent = load_agent(path)
+    assert isinstance(agent, AgentPolicy) and agent.frame_stack == meta["frame_stack"]
+    res = evaluate(agent, meta["env_id"], meta["scenario"], n_episodes=meta["test"]["n_episodes"],
+                   seed=meta["test"]["seed"])
+    for name in METRICS:
+        np.testing.assert_allclose(res.metrics[name], meta["test"]["metrics"][name], rtol=1e-9, atol=1e-12,
+                                   err_msg=name)
+    # Actions are in range, for one observation or a batch.
+    env = gym.make(meta["env_id"])
+    obs = np.stack([env.reset(seed=TEST_SEED + i)[0] for i in range(3)])
+    a, _ = agent.predict(obs, episode_start=np.ones(3, dtype=bool))
+    assert a.dtype == np.float32 and a.shape == (3, env.action_space.shape[0]) and np.all(np.abs(a) <= 1)
+    env.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_the_history_variant_sees_four_observations(runs: dict, env: str) -> None:
+    path, meta = runs[(env, "history")]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UntrustedFileWarning)
+        agent = load_agent(path)
+    d = gym.make(env).observation_space.shape[0]
+    assert agent.model.observation_space.shape == (4 * d,)
+    # The stack is oldest first, zeros before the episode's first observation.
+    obs = np.arange(2 * d, dtype=np.float32).reshape(2, d)
+    seen = agent._stack(obs, np.ones(2, dtype=bool))
+    np.testing.assert_array_equal(seen[:, : 3 * d], 0.0)
+    np.testing.assert_array_equal(seen[:, 3 * d:], obs)
+    seen = agent._stack(obs + 1, np.zeros(2, dtype=bool))
+    np.testing.assert_array_equal(seen[:, 2 * d: 3 * d], obs)
+    np.testing.assert_array_equal(seen[:, 3 * d:], obs + 1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_the_untrained_residual_agent_is_the_base_law(runs: dict, env: str) -> None:
+    """The first validation (step 0, zero-initialised last layer) is exactly the law's evaluation."""
+    _, meta = runs[(env, "residual_ppo")]
+    first = meta["curve"][0]
+    assert first["steps"] == 0
+    law = evaluate(lambda e: GeometricController(e, gain=meta["residual"]["gain"]), env, "nominal", n_episodes=3,
+                   seed=VALIDATION_SEED)
+    summary = law.summary(reps=200)
+    for name in ("mean_abs_phi", "mean_abs_phi_sf", "return", "terminated"):
+        assert first[name] == summary[name].point, name
+
+
+def test_an_untrained_residual_agent_acts_like_its_base() -> None:
+    """Directly: a PPO model with the last layer zeroed, as train() builds it, through AgentPolicy."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from vnhc_gym.sb3 import GymnasiumVecEnvAdapter
+    from vnhc_gym.wrappers import ResidualVectorAction
+
+    env = ENVS[-1]
+    venv = ResidualVectorAction(gym.make_vec(env, num_envs=2, vectorization_mode="vector_entry_point"),
+                                observe_base=True, scale=0.2)
+    model = PPO("MlpPolicy", GymnasiumVecEnvAdapter(venv), seed=0, device="cpu", n_steps=16, batch_size=32)
+    with torch.no_grad():
+        model.policy.action_net.weight.zero_()
+        model.policy.action_net.bias.zero_()
+    agent = AgentPolicy(model, {"algo": "residual_ppo", "residual": {"scale": 0.2, "observe_base": True, "gain": 5.0}})
+    with pytest.raises(RuntimeError, match="bind"):
+        agent.predict(np.zeros(gym.make(env).observation_space.shape, dtype=np.float32))
+    agent.bind(gym.make(env))
+    a = evaluate(agent, env, "noisy", n_episodes=3, seed=TEST_SEED, max_time=2.0)
+    b = evaluate(GeometricController, env, "noisy", n_episodes=3, seed=TEST_SEED, max_time=2.0)
+    np.testing.assert_array_equal(a.abs_phi, b.abs_phi)
+    venv.close()
+
+
+@pytest.mark.xfail(strict=True, reason="train() validates every n_timesteps // eval_points env steps for as long "
+                   "as SB3 runs, and SB3 runs whole rollouts: a budget under one rollout validates far more than "
+                   "eval_points times (training/run.py, `every` and _Validate)")
+def test_validations_follow_eval_points_when_a_rollout_outgrows_the_budget(tmp_path: Path) -> None:
+    """A budget smaller than one rollout (512 steps here) still validates about eval_points times."""
+    meta = train(TrainConfig(algo="ppo", env=_task_name(ENVS[0]), n_timesteps=100, overrides=TINY,
+                             out=str(tmp_path), eval_points=2, eval_episodes=1, test_episodes=1, threads=1))
+    assert len(meta["curve"]) <= 2 + 2  # step 0, eval_points, and the end
+
+
+def test_configuration_errors(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="algo"):
+        train(TrainConfig(algo="sac", out=str(tmp_path)))
+    with pytest.raises(ValueError, match="unknown environment"):
+        train(TrainConfig(env="cartpole", out=str(tmp_path)))
+    assert set(ALGOS) >= {"ppo", "residual_ppo"}
+    for name, entry in TASKS.items():
+        full = f"vnhc_gym/{entry.env_name}-v1"
+        assert resolve_env_id(name) == full
+        assert resolve_env_id(entry.env_name) == full
+        assert resolve_env_id(full) == full
+        assert resolve_env_id(f"vnhc_gym/{entry.env_name}-v0") == f"vnhc_gym/{entry.env_name}-v0"
+    with pytest.raises(ValueError, match="unknown environment"):
+        resolve_env_id("cartpole")
+
+
+def test_code_fingerprint_is_stable() -> None:
+    a, b = code_fingerprint(), code_fingerprint()
+    assert a == b and len(a) == 16 and int(a, 16) >= 0
+
+
+def test_load_agent_errors(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError):
+        load_agent("no-such-agent")
+    with pytest.raises(FileNotFoundError):
+        load_agent(tmp_path / "missing.zip")
+    (tmp_path / "lonely.zip").write_bytes(b"PK")
+    with pytest.raises(FileNotFoundError, match="sidecar"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", UntrustedFileWarning)
+        load_agent(tmp_path / "lonely.zip")
+
+
+SHIPPED = list_zoo()
+
+
+@pytest.mark.skipif(not SHIPPED, reason="no agents shipped in vnhc_gym/agents_zoo")
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_agents_load_without_warning_and_reproduce_their_record(name: str) -> None:
+    side = json.loads((ZOO_DIR / f"{name}.json").read_text())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UntrustedFileWarning)  # the package's own files: no warning
+        agent = load_agent(name)
+    rec = side.get("test") or side["zoo_eval"]
+    res = evaluate(agent, side["env_id"], side.get("scenario", "nominal"), n_episodes=rec["n_episodes"],
+                   seed=rec["seed"])
+    recorded = rec["metrics"]["mean_abs_phi"] if "metrics" in rec else rec["episodes"]
+    np.testing.assert_allclose(res.metrics["mean_abs_phi"], recorded, rtol=1e-3)
