@@ -135,14 +135,25 @@ def test_the_history_variant_sees_four_observations(runs: dict, env: str) -> Non
         agent = load_agent(path)
     d = gym.make(env).observation_space.shape[0]
     assert agent.model.observation_space.shape == (4 * d,)
-    # The stack is oldest first, zeros before the episode's first observation.
-    obs = np.arange(2 * d, dtype=np.float32).reshape(2, d)
-    seen = agent._stack(obs, np.ones(2, dtype=bool))
-    np.testing.assert_array_equal(seen[:, : 3 * d], 0.0)
-    np.testing.assert_array_equal(seen[:, 3 * d:], obs)
-    seen = agent._stack(obs + 1, np.zeros(2, dtype=bool))
-    np.testing.assert_array_equal(seen[:, 2 * d: 3 * d], obs)
-    np.testing.assert_array_equal(seen[:, 3 * d:], obs + 1)
+    # The agent stacks raw observations exactly as SB3's VecFrameStack did in training (oldest first,
+    # zeros before an episode's first observation).
+    from gymnasium.vector import AutoresetMode
+    from stable_baselines3.common.vec_env import VecFrameStack
+
+    from vnhc_gym.sb3 import GymnasiumVecEnvAdapter
+
+    venv = gym.make_vec(env, num_envs=2, vectorization_mode="vector_entry_point",
+                        autoreset_mode=AutoresetMode.SAME_STEP)
+    stacked_env = VecFrameStack(GymnasiumVecEnvAdapter(venv), 4)
+    stacked_env.seed(TEST_SEED)
+    stacked = stacked_env.reset()
+    np.testing.assert_array_equal(stacked[:, : 3 * d], 0.0)
+    np.testing.assert_array_equal(agent._stack(stacked[:, -d:], np.ones(2, dtype=bool)), stacked)
+    rng = np.random.default_rng(0)
+    for _ in range(6):
+        stacked, *_ = stacked_env.step(rng.uniform(-1, 1, (2, venv.single_action_space.shape[0])).astype(np.float32))
+        np.testing.assert_array_equal(agent._stack(stacked[:, -d:], np.zeros(2, dtype=bool)), stacked)
+    stacked_env.close()
 
 
 @pytest.mark.slow
