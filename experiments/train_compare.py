@@ -37,6 +37,9 @@ def main() -> None:
     ap.add_argument("--address", default=None)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--publish", metavar="DIR", help="copy the report's tables and figures to DIR")
+    ap.add_argument("--ship", action="store_true",
+                    help="copy the median-seed nominal agent of each task and algorithm into vnhc_gym/agents_zoo and "
+                         "the classical settings chosen per cell into vnhc_gym/baselines/settings.json")
     args = ap.parse_args()
     if args.quick:
         specs = grid(["flocking", "usv"], ["nominal"], ["law", "tuned_law", "ppo", "residual_ppo"], [0], 2048,
@@ -54,6 +57,39 @@ def main() -> None:
         for f in (Path(args.out) / "report").iterdir():
             shutil.copy(f, dest / f.name)
         print(f"report copied to {dest}")
+    if args.ship:
+        ship(Path(args.out))
+
+
+def ship(out: Path) -> None:
+    """The agents and settings the package ships, from a finished comparison."""
+    import json
+
+    import numpy as np
+
+    from vnhc_gym.sweep import load_runs
+
+    root = Path(__file__).resolve().parent.parent / "vnhc_gym"
+    runs = load_runs(out)
+    settings: dict[str, dict[str, dict[str, dict]]] = {}
+    for r in runs:
+        spec = r["spec"]
+        if spec["algo"] in CLASSICAL_ALGOS:
+            settings.setdefault(spec["env"], {}).setdefault(spec["scenario"], {})[spec["algo"]] = r["settings"]
+    (root / "baselines" / "settings.json").write_text(json.dumps(settings, indent=1, sort_keys=True) + "\n")
+    for task in GRID["envs"]:
+        for algo in LEARNED_ALGOS:
+            rs = [r for r in runs if r["spec"]["env"] == task and r["spec"]["scenario"] == "nominal"
+                  and r["spec"]["algo"] == algo]
+            if not rs:
+                continue
+            scores = [float(np.median(r["test"]["metrics"]["mean_abs_phi_sf"])) for r in rs]
+            median = rs[int(np.argsort(scores)[len(scores) // 2])]
+            stem = f"{task}-{algo}"
+            shutil.copy(out / "runs" / f"{median['name']}.zip", root / "agents_zoo" / f"{stem}.zip")
+            side = {**median, "name": algo, "shipped_from": median["name"]}
+            (root / "agents_zoo" / f"{stem}.json").write_text(json.dumps(side, indent=1) + "\n")
+            print(f"shipped {stem} (seed {median['spec']['seed']})")
 
 
 if __name__ == "__main__":

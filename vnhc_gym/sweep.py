@@ -322,6 +322,7 @@ def report(out: str | Path, metric: str = "mean_abs_phi_sf", reps: int = 2000, l
             rows.append(row)
     (dest / "comparison.json").write_text(json.dumps(rows, indent=1))
     _write_tables(rows, dest)
+    _write_headline(rows, dest, metric)
     figures = _figures(cells, dest, metric)
     log(f"report: {len(runs)} runs, {len(cells)} cells -> {dest}")
     return {"rows": rows, "figures": figures, "codes": codes}
@@ -352,6 +353,30 @@ def _write_tables(rows: list[dict[str, Any]], dest: Path) -> None:
         lines.append(f"| {r['env']} | {r['scenario']} | {r['algo']}{best} | {r['runs']} | {_fmt(r['iqm'])} "
                      f"[{_fmt(r['low'])}, {_fmt(r['high'])}] | {r['terminated']:.2f} | {poi} | {steps} | {secs} |")
     (dest / "comparison.md").write_text("\n".join(lines) + "\n")
+
+
+def _write_headline(rows: list[dict[str, Any]], dest: Path, metric: str) -> None:
+    """``headline.md``: one line per cell, the best classical baseline against each learned agent."""
+    learned = [a for a in LEARNED_ALGOS if any(r["algo"] == a for r in rows)]
+    lines = [f"IQM of the per-episode {metric} over held-out test episodes; in brackets the probability that an "
+             "agent's episode beats one of the best classical baseline's, with its 95 % interval (**bold**: the "
+             "interval lies above 0.5).", "",
+             "| env | scenario | best classical | " + " | ".join(learned) + " |",
+             "|---|---|---|" + "---|" * len(learned)]
+    cells = sorted({(r["env"], r["scenario"]) for r in rows})
+    for env, scenario in cells:
+        cell = {r["algo"]: r for r in rows if r["env"] == env and r["scenario"] == scenario}
+        best = next((r for r in cell.values() if r["algo"] == r["best_classical"]), None)
+        parts = [f"{best['algo']} {_fmt(best['iqm'])}" if best else ""]
+        for algo in learned:
+            r = cell.get(algo)
+            if r is None or "poi" not in r:
+                parts.append("")
+                continue
+            poi = f"{r['poi']:.2f} [{r['poi_low']:.2f}, {r['poi_high']:.2f}]"
+            parts.append(f"{_fmt(r['iqm'])} ({'**' + poi + '**' if r['poi_low'] > 0.5 else poi})")
+        lines.append(f"| {env} | {scenario} | " + " | ".join(parts) + " |")
+    (dest / "headline.md").write_text("\n".join(lines) + "\n")
 
 
 def _figures(cells: dict[tuple[str, str], Cell], dest: Path, metric: str) -> list[str]:
