@@ -433,8 +433,6 @@ def test_tuning_reads_only_validation_seeds_and_keeps_the_best(name: str, monkey
     assert best == {k: table[int(np.argmin(scores))][k] for k in keys}
 
 
-@pytest.mark.xfail(strict=True, reason="tune() takes any seed and episode count: nothing keeps its episodes below "
-                                       "TEST_SEED (tuning.py, tune: no check of seed + n_episodes)")
 def test_tuning_cannot_be_pointed_at_test_seeds(monkeypatch: pytest.MonkeyPatch) -> None:
     log = _SeedLog(evaluate, fake=True)
     _patch_evaluate(monkeypatch, log)

@@ -67,10 +67,6 @@ def test_argument_errors_are_usage_errors(args: list[str], capsys: pytest.Captur
     assert "usage: vnhc-gym" in err and "error:" in err
 
 
-@pytest.mark.xfail(strict=True, reason="values that argparse accepts but the run rejects (an unknown env, a "
-                                       "malformed -params item, an unknown sweep algo, --episodes 0, an unknown "
-                                       "config key) escape as a ValueError traceback: cli.main does not turn them "
-                                       "into a usage error")
 @pytest.mark.parametrize("args", [
     ["train", "--env", "cartpole", "-n", "10"],
     ["train", "-n", "10", "-params", "n_steps"],

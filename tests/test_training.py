@@ -195,9 +195,6 @@ def test_an_untrained_residual_agent_acts_like_its_base() -> None:
     venv.close()
 
 
-@pytest.mark.xfail(strict=True, reason="train() validates every n_timesteps // eval_points env steps for as long "
-                   "as SB3 runs, and SB3 runs whole rollouts: a budget under one rollout validates far more than "
-                   "eval_points times (training/run.py, `every` and _Validate)")
 def test_validations_follow_eval_points_when_a_rollout_outgrows_the_budget(tmp_path: Path) -> None:
     """A budget smaller than one rollout (512 steps here) still validates about eval_points times."""
     meta = train(TrainConfig(algo="ppo", env=_task_name(ENVS[0]), n_timesteps=100, overrides=TINY,

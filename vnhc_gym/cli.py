@@ -35,7 +35,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             module.add_arguments(p)
             p.set_defaults(_run=module.run)
     args = parser.parse_args(args_in)
-    return int(args._run(args) or 0)
+    try:
+        return int(args._run(args) or 0)
+    except ValueError as exc:  # a value argparse accepted but the command cannot use: a usage error
+        parser.error(f"{args.command}: {exc}")
 
 
 if __name__ == "__main__":  # pragma: no cover

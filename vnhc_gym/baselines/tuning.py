@@ -47,8 +47,12 @@ def tune(name: str, env_id: str, scenario: str, n_episodes: int = 10, seed: int 
     Returns ``(best_kwargs, table)``; ``table`` rows hold the settings and the IQM of
     ``SELECTION_METRIC`` over the validation episodes.
     """
-    from vnhc_gym.evaluation import VALIDATION_SEED, evaluate
+    from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate
 
+    first = VALIDATION_SEED if seed is None else seed
+    if first + n_episodes > TEST_SEED:
+        raise ValueError(f"tuning episodes (seeds {first}..{first + n_episodes - 1}) must stay below the test seeds "
+                         f"({TEST_SEED} and up); pass a smaller seed or n_episodes")
     _, grid = CLASSICAL[name]
     keys = sorted(grid)
     table = []
@@ -57,8 +61,7 @@ def tune(name: str, env_id: str, scenario: str, n_episodes: int = 10, seed: int 
         def factory(env: Any, kw: dict[str, Any] = kwargs) -> Any:
             return make_classical(name, env, **kw)
 
-        res = evaluate(factory, env_id, scenario, n_episodes=n_episodes,
-                       seed=VALIDATION_SEED if seed is None else seed, **env_kwargs)
+        res = evaluate(factory, env_id, scenario, n_episodes=n_episodes, seed=first, **env_kwargs)
         table.append({**kwargs, "score": res.summary(reps=200)[SELECTION_METRIC].point})
     best = min(table, key=lambda row: row["score"])
     return {k: best[k] for k in keys}, table

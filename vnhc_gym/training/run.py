@@ -216,7 +216,7 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
     }
     curve: list[dict[str, float]] = []
     best = {"score": math.inf}
-    every = max(n_envs, n_timesteps // max(1, cfg.eval_points))
+    every = max(1, n_timesteps // max(1, cfg.eval_points))
     t_start = time.perf_counter()
     t_eval = 0.0
 
@@ -243,15 +243,21 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
     from stable_baselines3.common.callbacks import BaseCallback
 
     class _Validate(BaseCallback):
+        """Validates after the first rollout that crosses each multiple of ``every`` env steps (SB3
+        collects whole rollouts, so at most once a rollout)."""
+
         def __init__(self) -> None:
             super().__init__()
             self.next = every
 
         def _on_step(self) -> bool:
-            if self.num_timesteps >= self.next:
-                self.next += every
-                validate()
             return True
+
+        def _on_rollout_end(self) -> None:
+            if self.num_timesteps >= self.next:
+                while self.next <= self.num_timesteps:
+                    self.next += every
+                validate()
 
     validate()
     model.learn(total_timesteps=n_timesteps, callback=_Validate(), progress_bar=cfg.progress_bar)
