@@ -148,11 +148,11 @@ def test_the_history_variant_sees_four_observations(runs: dict, env: str) -> Non
     stacked_env.seed(TEST_SEED)
     stacked = stacked_env.reset()
     np.testing.assert_array_equal(stacked[:, : 3 * d], 0.0)
-    np.testing.assert_array_equal(agent._stack(stacked[:, -d:], np.ones(2, dtype=bool)), stacked)
+    np.testing.assert_array_equal(agent.network._stack(stacked[:, -d:], np.ones(2, dtype=bool)), stacked)
     rng = np.random.default_rng(0)
     for _ in range(6):
         stacked, *_ = stacked_env.step(rng.uniform(-1, 1, (2, venv.single_action_space.shape[0])).astype(np.float32))
-        np.testing.assert_array_equal(agent._stack(stacked[:, -d:], np.zeros(2, dtype=bool)), stacked)
+        np.testing.assert_array_equal(agent.network._stack(stacked[:, -d:], np.zeros(2, dtype=bool)), stacked)
     stacked_env.close()
 
 

@@ -134,8 +134,9 @@ def _machine_code_dir(path: Path) -> Path:
     from numba.core import config
     from numba.core.caching import _CacheLocator
 
-    if config.CACHE_DIR:
-        return Path(config.CACHE_DIR) / _CacheLocator.get_suitable_cache_subpath(str(path))
+    cache_root = getattr(config, "CACHE_DIR", "")
+    if cache_root:
+        return Path(cache_root) / _CacheLocator.get_suitable_cache_subpath(str(path))
     return path.parent / "__pycache__"
 
 

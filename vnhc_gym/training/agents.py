@@ -42,37 +42,17 @@ def sidecar_of(path: str | Path) -> dict[str, Any]:
     return json.loads(side.read_text())
 
 
-class AgentPolicy:
-    """A trained agent on raw observations (SB3 ``predict``; recurrent agents keep their state).
-
-    Parameters
-    ----------
-    model : stable_baselines3 model
-    meta : dict
-        The run's sidecar (algorithm, env id, residual settings, observation statistics).
-    """
+class _Network:
+    """The SB3 model on raw observations: normalised with the training statistics and, for the history
+    variant, stacked over the last ``frame_stack`` steps."""
 
     def __init__(self, model: Any, meta: dict[str, Any]) -> None:
         self.model = model
-        self.meta = meta
-        self.algo = str(meta.get("algo", "ppo"))
-        self.name = str(meta.get("name", self.algo))
         rms = meta.get("obs_rms")
         self._rms = None if rms is None else (np.asarray(rms["mean"]), np.asarray(rms["var"]), float(rms["clip"]),
                                               float(rms.get("epsilon", 1e-8)))
-        self.residual: dict[str, Any] | None = meta.get("residual")
-        self.base: Any = None
         self.frame_stack = int(meta.get("frame_stack", 1) or 1)
-        self._frames: NDArray[np.float32] | None = None  # the history variant's stacked observations
-
-    def bind(self, env: Any) -> AgentPolicy:
-        """Build the residual agent's base controller for ``env`` (its force bound, ``dt``); other
-        agents need nothing.  Returns self."""
-        if self.residual is not None:
-            from vnhc_gym.baselines import make_classical
-
-            self.base = make_classical(self.residual.get("base") or "law", env, gain=self.residual.get("gain", 5.0))
-        return self
+        self._frames: NDArray[np.float32] | None = None
 
     def _normalize(self, obs: NDArray[np.float32]) -> NDArray[np.float32]:
         if self._rms is None:
@@ -100,22 +80,56 @@ class AgentPolicy:
         single = obs.ndim == 1
         batch = obs[None] if single else obs
         starts = None if episode_start is None else np.asarray(episode_start, dtype=bool).reshape(-1)
-        base = None
-        if self.residual is not None:
-            if self.base is None:
-                raise RuntimeError("a residual agent needs its base controller: call bind(env) first")
-            b, _ = self.base.predict(batch, episode_start=starts, deterministic=True)
-            base = np.asarray(b, dtype=np.float64).reshape(batch.shape[0], -1)
-            if self.residual.get("observe_base"):
-                batch = np.concatenate([batch, base.astype(np.float32)], axis=1)
         seen = self._stack(self._normalize(batch), starts)
         kwargs = {"state": state, "episode_start": starts} if state is not None or starts is not None else {}
         a, state = self.model.predict(seen, deterministic=deterministic, **kwargs)
-        a = np.asarray(a, dtype=np.float64).reshape(batch.shape[0], -1)
-        if base is not None:
-            a = np.clip(base + float(self.residual["scale"]) * np.clip(a, -1.0, 1.0), -1.0, 1.0)  # type: ignore[index]
-        out = np.clip(a, -1.0, 1.0).astype(np.float32)
+        out = np.clip(np.asarray(a, dtype=np.float64).reshape(batch.shape[0], -1), -1.0, 1.0).astype(np.float32)
         return (out[0] if single else out), state
+
+
+class AgentPolicy:
+    """A trained agent on raw observations (SB3 ``predict``; recurrent agents keep their state).
+
+    Parameters
+    ----------
+    model : stable_baselines3 model
+    meta : dict
+        The run's sidecar (algorithm, env id, residual settings, observation statistics).
+    """
+
+    def __init__(self, model: Any, meta: dict[str, Any]) -> None:
+        self.model = model
+        self.meta = meta
+        self.algo = str(meta.get("algo", "ppo"))
+        self.name = str(meta.get("name", self.algo))
+        self.residual: dict[str, Any] | None = meta.get("residual")
+        self.network = _Network(model, meta)
+        self.base: Any = None
+        self._policy: Any = self.network if self.residual is None else None
+
+    @property
+    def frame_stack(self) -> int:
+        """Observations the network sees at once (1, or 4 for the history variant)."""
+        return self.network.frame_stack
+
+    def bind(self, env: Any) -> AgentPolicy:
+        """Build the residual agent's base controller for ``env`` (its force bound, ``dt``); other
+        agents need nothing.  Returns self."""
+        if self.residual is not None:
+            from vnhc_gym.baselines import make_classical
+            from vnhc_gym.wrappers import ResidualPolicy
+
+            self.base = make_classical(self.residual.get("base") or "law", env, gain=self.residual.get("gain", 5.0))
+            self._policy = ResidualPolicy(self.network, self.base, scale=float(self.residual["scale"]),
+                                          observe_base=bool(self.residual.get("observe_base")), name=self.name)
+        return self
+
+    def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[NDArray[np.float32], Any]:
+        if self._policy is None:
+            raise RuntimeError("a residual agent needs its base controller: call bind(env) first")
+        return self._policy.predict(observation, state=state, episode_start=episode_start,  # type: ignore[no-any-return]
+                                    deterministic=deterministic)
 
     def __repr__(self) -> str:
         return f"AgentPolicy({self.name!r}, env={self.meta.get('env_id')!r})"
