@@ -36,7 +36,8 @@ def main() -> None:
     ap.add_argument("--executor", choices=["local", "ray"], default="local")
     ap.add_argument("--address", default=None)
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--publish", metavar="DIR", help="copy the report's tables and figures to DIR")
+    ap.add_argument("--publish", metavar="DIR", help="copy the report's tables and figures to DIR, and put its "
+                    "headline table in the README (between the results markers)")
     ap.add_argument("--ship", action="store_true",
                     help="copy the median-seed nominal agent of each task and algorithm into vnhc_gym/agents_zoo and "
                          "the classical settings chosen per cell into vnhc_gym/baselines/settings.json")
@@ -57,6 +58,15 @@ def main() -> None:
         for f in (Path(args.out) / "report").iterdir():
             shutil.copy(f, dest / f.name)
         print(f"report copied to {dest}")
+        readme = Path(__file__).resolve().parent.parent / "README.md"
+        text = readme.read_text()
+        begin, end = "<!-- results: begin -->", "<!-- results: end -->"
+        if begin in text and end in text:
+            head, _, rest = text.partition(begin)
+            _, _, tail = rest.partition(end)
+            table = (Path(args.out) / "report" / "headline.md").read_text()
+            readme.write_text(f"{head}{begin}\n{table}{end}{tail}")
+            print(f"headline table written into {readme}")
     if args.ship:
         ship(Path(args.out))
 
