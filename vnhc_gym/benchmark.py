@@ -31,6 +31,7 @@ import argparse
 import json
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -184,7 +185,8 @@ def _figures(results: list[Any], out: Path) -> list[Path]:
         fig, ax = plt.subplots(figsize=(6, 3.6))
         for i, r in enumerate(rs):
             t = np.arange(r.abs_phi_sf.shape[0]) * r.dt
-            with np.errstate(all="ignore"):
+            with warnings.catch_warnings():  # all-NaN after every episode of a cell has ended
+                warnings.simplefilter("ignore", RuntimeWarning)
                 med = np.nanmedian(r.abs_phi_sf, axis=1)
             # Distinct styles and markers: curves that coincide (the law and a residual agent that
             # learned nothing) stay visible.

@@ -1,4 +1,4 @@
-"""Pygame renderers for ``FlockingAlign-v0`` and ``USVStream-v0``.
+"""Pygame renderers: the flock in its plane, and a boat (or a sled) seen from above.
 
 Both follow Gymnasium's classic-control pattern: everything is drawn on an off-screen
 ``pygame.Surface``.  ``render_mode="rgb_array"`` returns it as a ``uint8 (H, W, 3)`` array and
@@ -186,7 +186,7 @@ class FlockingRenderer:
         if int(n_agents) != n_agents or n_agents < 2:
             raise ValueError(f"n_agents must be an integer >= 2, got {n_agents!r}")
         self.n_agents = int(n_agents)
-        self._canvas = _Canvas(render_mode, fps, "FlockingAlign-v0")
+        self._canvas = _Canvas(render_mode, fps, "FlockingAlign")
         self.render_mode = render_mode
 
     def draw(self, state: NDArray[np.float64], phi: NDArray[np.float64]) -> NDArray[np.uint8] | None:
@@ -256,7 +256,7 @@ class USVRenderer:
     arrow_scale = 2.0  #: metres of arrow per m/s of velocity
 
     def __init__(self, render_mode: str, fps: float = 20) -> None:
-        self._canvas = _Canvas(render_mode, fps, "USVStream-v0")
+        self._canvas = _Canvas(render_mode, fps, "vnhc_gym")
         self.render_mode = render_mode
 
     def _tip(self, x: float, y: float, vx: float, vy: float) -> Point:
