@@ -190,13 +190,12 @@ def run_sweep(specs: Iterable[RunSpec], out: str | Path, *, executor: str = "loc
     if executor != "local":
         raise ValueError(f"executor must be 'local' or 'ray', got {executor!r}")
     if jobs <= 1:
-        for i, spec in enumerate(todo):
+        for spec in todo:
             _progress(len(result["done"]), len(result["failed"]), 1, len(todo), t0, log)
             stem, err = _guarded(spec, out, threads)
             result["failed" if err else "done"].append(stem)
             if err:
                 log(f"sweep: {stem} failed:\n{err.strip().splitlines()[-1]}")
-            _ = i
         return result
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         futures = {pool.submit(_guarded, s, out, threads): s for s in todo}
