@@ -34,9 +34,7 @@ __all__ = ["CLASSICAL_ALGOS", "LEARNED_ALGOS", "RunSpec", "grid", "load_runs", "
 #: Learned agents (trained with vnhc_gym.training) and classical baselines (vnhc_gym.baselines.tuning).
 LEARNED_ALGOS = ("ppo", "residual_ppo", "ppo_history")
 CLASSICAL_ALGOS = ("law", "tuned_law", "observer", "adaptive")
-#: The base of residual PPO where the scenario hides information: the observer's estimate under
-#: noise, the adaptive law's under mismatch; the law elsewhere.
-RESIDUAL_BASE = {"noisy": "observer", "mismatch": "adaptive"}
+
 
 
 @dataclass(frozen=True)
@@ -123,10 +121,11 @@ def run_one(spec: RunSpec, out: str | Path, threads: int = 1) -> dict[str, Any]:
         overrides = dict(spec.overrides)
         if spec.algo == "ppo_history":
             overrides.setdefault("frame_stack", 4)
+        base, settings = _best_classical(spec, out, env_id) if algo == "residual_ppo" else (None, None)
         cfg = TrainConfig(algo=algo, env=spec.env, scenario=spec.scenario, seed=spec.seed,
                           n_timesteps=spec.n_timesteps, out=str(runs), threads=threads, name=spec.stem,
                           eval_episodes=spec.eval_episodes, test_episodes=spec.test_episodes, overrides=overrides,
-                          residual_base=RESIDUAL_BASE.get(spec.scenario, "law") if algo == "residual_ppo" else None)
+                          residual_base=base, residual_base_settings=settings)
         meta = train(cfg)
         meta["sweep_algo"] = spec.algo
     else:
@@ -145,6 +144,28 @@ def run_one(spec: RunSpec, out: str | Path, threads: int = 1) -> dict[str, Any]:
     meta["run_wall"] = time.perf_counter() - t0
     _atomic_json(runs / f"{spec.stem}.json", meta)
     return meta
+
+
+def _best_classical(spec: RunSpec, out: str | Path, env_id: str) -> tuple[str, dict[str, Any]]:
+    """The best classical baseline of the run's cell (lowest validation score) and its settings: the
+    base of residual PPO, which then starts from the strongest model-based controller of the cell.
+    Read from the cell's finished classical runs when they are all there, else tuned here (on
+    validation episodes, as they would be)."""
+    cell = [RunSpec(a, spec.env, spec.scenario, test_episodes=spec.test_episodes, eval_episodes=spec.eval_episodes)
+            for a in CLASSICAL_ALGOS]
+    found = [Path(out) / "runs" / f"{c.stem}.json" for c in cell]
+    if all(f.exists() for f in found):
+        runs = [json.loads(f.read_text()) for f in found]
+        best = min(runs, key=lambda r: r["validation_score"])
+        return str(best["algo"]), dict(best["settings"])
+    from vnhc_gym.baselines.tuning import tune
+
+    scored = []
+    for c in cell:
+        settings, table = tune(c.algo, env_id, spec.scenario, n_episodes=spec.eval_episodes)
+        scored.append((min(row["score"] for row in table), c.algo, settings))
+    _, name, settings = min(scored, key=lambda t: t[0])
+    return name, settings
 
 
 def _guarded(spec: RunSpec, out: str, threads: int) -> tuple[str, str | None]:

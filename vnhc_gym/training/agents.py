@@ -119,7 +119,8 @@ class AgentPolicy:
             from vnhc_gym.baselines import make_classical
             from vnhc_gym.wrappers import ResidualPolicy
 
-            self.base = make_classical(self.residual.get("base") or "law", env, gain=self.residual.get("gain", 5.0))
+            settings = {"gain": self.residual.get("gain", 5.0), **(self.residual.get("base_settings") or {})}
+            self.base = make_classical(self.residual.get("base") or "law", env, **settings)
             self._policy = ResidualPolicy(self.network, self.base, scale=float(self.residual["scale"]),
                                           observe_base=bool(self.residual.get("observe_base")), name=self.name)
         return self

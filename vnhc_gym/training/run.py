@@ -87,6 +87,7 @@ class TrainConfig:
     env_kwargs: dict[str, Any] = field(default_factory=dict)  #: environment arguments of the training envs only
     progress_bar: bool = False
     residual_base: str | None = None  #: the residual's base controller (a classical baseline's name)
+    residual_base_settings: dict[str, Any] | None = None  #: its settings (gain, alpha, ...)
     name: str | None = None  #: file stem (default ``<task>-<scenario>-<algo>-s<seed>``)
 
 
@@ -182,6 +183,8 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
         residual = dict(wkw)
         if cfg.residual_base is not None:
             residual["base"] = cfg.residual_base
+        if cfg.residual_base_settings is not None:
+            residual["base_settings"] = dict(cfg.residual_base_settings)
     for key in ("learning_rate", "clip_range"):
         if isinstance(hp.get(key), str):
             hp[key] = make_schedule(hp[key])

@@ -33,11 +33,12 @@ def _check_spaces(obs_space: gym.Space, act_space: gym.Space) -> spaces.Box:
     return act_space
 
 
-def _default_base(env: Any, base: Any, gain: float | None) -> Any:
+def _default_base(env: Any, base: Any, gain: float | None, settings: dict[str, Any] | None = None) -> Any:
     if base is None or isinstance(base, str):
         from vnhc_gym.baselines import make_classical
 
-        return make_classical(base or "law", env, gain=DEFAULT_GAIN if gain is None else gain)
+        kwargs = {"gain": DEFAULT_GAIN if gain is None else gain, **(settings or {})}
+        return make_classical(base or "law", env, **kwargs)
     if not hasattr(base, "predict"):
         raise TypeError(f"base must have a predict(obs) method, got {type(base).__name__}")
     return base
@@ -59,14 +60,16 @@ class ResidualAction(gym.Wrapper):
         Action space ``Box(-1, 1)`` and a ``Box`` observation space (else ``TypeError``).
     base : object with ``predict``, or a name, optional
         The base controller (SB3 interface), or the name of a classical baseline
-        (``"law"``, ``"observer"``, ``"adaptive"``: :data:`vnhc_gym.baselines.CLASSICAL`, with its
-        default settings); default ``"law"``, the geometric law with gain ``gain``.
+        (``"law"``, ``"tuned_law"``, ``"observer"``, ``"adaptive"``: :data:`vnhc_gym.baselines.CLASSICAL`);
+        default ``"law"``, the geometric law with gain ``gain``.
     scale : float, default 0.2
         Largest residual, as a fraction of the action range (0 to 1).
     gain : float, optional
         Gain of the default base (default 5).
     observe_base : bool, default False
         Append the base action to the observation.
+    base_settings : dict, optional
+        Keyword arguments of a base given by name (its gain, an observer's ``alpha``, ...).
 
     Notes
     -----
@@ -74,11 +77,11 @@ class ResidualAction(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, base: Any = None, scale: float = 0.2, gain: float | None = None,
-                 observe_base: bool = False) -> None:
+                 observe_base: bool = False, base_settings: dict[str, Any] | None = None) -> None:
         box = _check_spaces(env.observation_space, env.action_space)
         super().__init__(env)
         self.scale: float = check_number("scale", scale, low=0.0, high=1.0)
-        self.base = _default_base(env, base, gain)
+        self.base = _default_base(env, base, gain, base_settings)
         self.observe_base = bool(observe_base)
         if self.observe_base:
             self.observation_space = _with_base(env.observation_space, box)  # type: ignore[arg-type]
@@ -112,11 +115,11 @@ class ResidualVectorAction(VectorWrapper):
     """
 
     def __init__(self, env: gym.vector.VectorEnv, base: Any = None, scale: float = 0.2, gain: float | None = None,
-                 observe_base: bool = False) -> None:
+                 observe_base: bool = False, base_settings: dict[str, Any] | None = None) -> None:
         box = _check_spaces(env.single_observation_space, env.single_action_space)
         super().__init__(env)
         self.scale = check_number("scale", scale, low=0.0, high=1.0)
-        self.base = _default_base(env, base, gain)
+        self.base = _default_base(env, base, gain, base_settings)
         self.observe_base = bool(observe_base)
         if self.observe_base:
             self.single_observation_space = _with_base(env.single_observation_space, box)  # type: ignore[arg-type]
