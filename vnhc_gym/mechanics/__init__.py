@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from vnhc_gym.mechanics.fleet import FleetLayout
 from vnhc_gym.mechanics.integrate import Trajectory, simulate
 from vnhc_gym.mechanics.kernels import FLAG_NONFINITE, FLAG_SINGULAR
 from vnhc_gym.mechanics.model import FEEDBACK_MODES, ConstrainedSystem, Feedback, SingularControlError
@@ -29,7 +30,8 @@ _SYMBOLIC = {
 }
 
 __all__ = [
-    "ConstrainedSystem", "FEEDBACK_MODES", "FLAG_NONFINITE", "FLAG_SINGULAR", "Feedback", "HolonomicConstraint",
+    "ConstrainedSystem", "FEEDBACK_MODES", "FLAG_NONFINITE", "FLAG_SINGULAR", "Feedback", "FleetLayout",
+    "HolonomicConstraint",
     "MechanicalSystem", "SingularControlError", "SymbolicLaw", "Trajectory", "VelocityConstraint", "derive_law",
     "sampled_control", "simulate",
 ]
