@@ -399,6 +399,14 @@ def _write_headline(rows: list[dict[str, Any]], dest: Path, metric: str) -> None
     (dest / "headline.md").write_text("\n".join(lines) + "\n")
 
 
+#: One look per algorithm in every figure: classical baselines dashed or dotted, agents solid.
+_STYLE: dict[str, dict[str, Any]] = {
+    "law": {"color": "black", "ls": "--"}, "tuned_law": {"color": "tab:purple", "ls": "--"},
+    "observer": {"color": "tab:brown", "ls": ":"}, "adaptive": {"color": "tab:gray", "ls": "-."},
+    "ppo": {"color": "tab:blue"}, "ppo_history": {"color": "tab:orange"}, "residual_ppo": {"color": "tab:green"},
+}
+
+
 def _figures(cells: dict[tuple[str, str], Cell], dest: Path, metric: str) -> list[str]:
     import matplotlib
 
@@ -422,9 +430,9 @@ def _figures(cells: dict[tuple[str, str], Cell], dest: Path, metric: str) -> lis
                     n = min(len(c) for c in curves)
                     steps = np.array([c[i]["steps"] for i in range(n) for c in curves[:1]])
                     vals = np.median(np.array([[c[i][metric] for i in range(n)] for c in curves]), axis=0)
-                    ax.plot(steps, vals, label=algo)
+                    ax.plot(steps, vals, label=algo, **_STYLE.get(algo, {}))
                 else:
-                    ax.axhline(rs[0]["validation_score"], ls="--", lw=1, label=algo)
+                    ax.axhline(rs[0]["validation_score"], lw=1, label=algo, **_STYLE.get(algo, {}))
             ax.set_yscale("log")
             ax.set_title(scenario, fontsize=9)
             ax.set_xlabel("env steps")
@@ -450,7 +458,7 @@ def _figures(cells: dict[tuple[str, str], Cell], dest: Path, metric: str) -> lis
         fig, ax = plt.subplots(figsize=(5, 3.5))
         for algo, vals in sorted(ratios.items()):
             v = np.asarray(vals)
-            ax.plot(taus, [(v <= t).mean() for t in taus], label=algo)
+            ax.plot(taus, [(v <= t).mean() for t in taus], label=algo, **_STYLE.get(algo, {}))
         ax.set_xscale("log")
         ax.set_xlabel(f"{metric} / the k = 5 law's (per cell)")
         ax.set_ylabel("fraction of runs at or below")
