@@ -113,7 +113,7 @@ def accept_actions(rows: np.ndarray, actions: np.ndarray, bound: np.ndarray, for
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def kick_row(r: int, buf: Buffers, cfg: StepConfig) -> None:
     """This step's velocity impulse of row ``r``: with probability ``impulse_prob``,
     ``impulse_scale * N(0, 1)`` on each velocity entry, times ``impulse_mask``; else zero."""
@@ -130,7 +130,7 @@ def kick_row(r: int, buf: Buffers, cfg: StepConfig) -> None:
             kick[j + 1] = cfg.impulse_scale * z1 * cfg.impulse_mask[j + 1]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _add_noise(r: int, buf: Buffers, cfg: StepConfig) -> None:
     """``obs[r] = clip(obs[r] + N(0, obs_noise^2))`` entry-wise, from row ``r``'s stream."""
     obs = buf.obs[r]
@@ -144,7 +144,7 @@ def _add_noise(r: int, buf: Buffers, cfg: StepConfig) -> None:
             obs[j + 1] = min(max(obs[j + 1] + sigma * z1, -clip), clip)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _mean_abs(x: np.ndarray) -> float:
     acc = 0.0
     for b in range(x.shape[0]):
@@ -152,7 +152,7 @@ def _mean_abs(x: np.ndarray) -> float:
     return acc / x.shape[0]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def finish_row(r: int, buf: Buffers, cfg: StepConfig) -> None:
     """After the task's ``observe`` of row ``r``: step count, observation noise, ``|phi|``, reward,
     and the float32 observation (kept at its last finite value, with ``STATUS_NONFINITE``, if the new
@@ -196,7 +196,7 @@ def finish_row(r: int, buf: Buffers, cfg: StepConfig) -> None:
             buf.obs32[r, j] = buf.obs[r, j]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def start_row(r: int, buf: Buffers, cfg: StepConfig) -> None:
     """Bookkeeping of a new episode in row ``r``, after the task's ``observe``: status OK, zero
     step count and forces, ``|phi|``, observation noise and the float32 observation."""

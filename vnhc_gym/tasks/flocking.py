@@ -79,7 +79,7 @@ def draw(r: int, stage: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
     draw_mismatch(rng, r, args.nominal, args.mismatch_mask, args.mismatch, buf.params_true[r])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def observe(r: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
     """Velocities in units of the leader's speed, its direction and log speed, ``phi^b / |v_N|^2``;
     status (non-finite only); scale-free ``phi~^b = phi^b / (|v_N| v_scale)``, follower ``b``'s velocity

@@ -62,7 +62,7 @@ def draw(r: int, stage: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
     S[5] = uniform_ab(rng, r, -1.0, 1.0)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def observe(r: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
     """Velocities in the sled's frame (forward, sideways), the turn rate and ``phi``; the status; the
     scale-free ``phi / vel_scale``."""

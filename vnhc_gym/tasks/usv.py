@@ -88,7 +88,7 @@ def draw(r: int, stage: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
         S[5] = uniform_ab(rng, r, -0.5, 0.5)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def observe(r: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
     """The observation (the nominal current map at the boat from ``buf.aux``), the status
     (non-finite, out of the square, spinning) and the scale-free ``phi / vel_scale``."""
