@@ -105,8 +105,7 @@ class Batch:
         self._reset = compiled(k.reset, rows, self.buf, self.cfg, self.task.args)
         self._act = compiled(accept_actions, rows, np.zeros((1, self.task.act_dim)), self.cfg.bound, self.buf.force,
                              self.buf.action)
-        self._act32 = compiled(accept_actions, rows, np.zeros((1, self.task.act_dim), dtype=np.float32),
-                               self.cfg.bound, self.buf.force, self.buf.action)
+        self._act32: Any = None  # the float32 variant, resolved on the first float32 actions
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
@@ -140,6 +139,8 @@ class Batch:
         """Store the actions ``(len(rows), m)`` (C-contiguous float64 or float32) of ``rows`` as forces;
         the index of the first non-finite row (nothing stored), or -1."""
         if actions.dtype == np.float32 and actions.flags.c_contiguous:
+            if self._act32 is None:
+                self._act32 = compiled(accept_actions, rows, actions, self.cfg.bound, self.buf.force, self.buf.action)
             return int(self._act32(rows, actions, self.cfg.bound, self.buf.force, self.buf.action))
         a = np.ascontiguousarray(actions, dtype=np.float64)  # the entry point takes exactly this type
         return int(self._act(rows, a, self.cfg.bound, self.buf.force, self.buf.action))
