@@ -6,7 +6,8 @@ and the effect of torch's thread count.  Writes results/bench_train.md and .json
     python experiments/bench_train.py --quick      # a smoke run
 
 The environment kernels run on one thread (numba, no thread pool), so only torch's threads can
-compete for the cores; the run also checks the documented default (``threads=1``).
+compete for the cores; at 256 environments the run compares one torch thread with two (the
+default of ``vnhc-gym train``).
 """
 
 from __future__ import annotations

@@ -44,7 +44,7 @@ def step_module(task: Task) -> ModuleType:
                                  _mechanics_kernels.__file__ or ""]
     key = module_key(["step", system, hooks], sources)
     block = (f"from {hooks} import DRAW_STAGES, draw, observe\n"
-             f"from {system} import N, _aux, _phi, rk4_row, work\n\n")
+             f"from {system} import OPEN, N, _aux, _phi, rk4_held_row, rk4_row, work\n\n")
     return load_module(key, lambda: fill_template(_TEMPLATE, "bindings", block, f"task {task.name!r}"),
                        label=f"the {task.name} environment", required=("step", "reset"))
 

@@ -115,7 +115,7 @@ def _feedback(s, pl, k, lo, hi, tol, w):
     return flag
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True)
 def rk4_row(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, w):
     """One control period ``dt`` of ``substeps`` RK4 steps from state ``s``, into ``out``.
 
@@ -125,7 +125,76 @@ def rk4_row(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, w):
     ``u_out`` gets the applied control averaged over the substeps' first stages.  Returns the
     row's flags: ``FLAG_SINGULAR`` if the law met a singular ``C`` (it is 0 there), and
     ``FLAG_NONFINITE`` if the new state is not finite.
+
+    Why two integrators: a held control (``OPEN``, ``SAMPLED``) needs no law inside the stages; kept
+    out of that loop, the law's calls no longer slow it, and a step kernel that calls
+    :func:`rk4_held_row` directly in the ``OPEN`` mode runs about twice as fast per row.
     """
+    if mode == OPEN:
+        return rk4_held_row(s, p, uh, lo, hi, dt, substeps, out, u_out, w)
+    return _rk4_feedback(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, w)
+
+
+@njit(cache=True, error_model="numpy")
+def _rk4_feedback(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, w):
+    """:func:`rk4_row` with the law: held from the period's start (``SAMPLED``) or at every stage."""
+    if mode == SAMPLED:
+        flag = law_row(s, pl, k, tol, w, w.law)
+        for a in range(M):
+            w.base[a] = uh[a] + w.law[a]
+        return flag | rk4_held_row(s, p, w.base, lo, hi, dt, substeps, out, u_out, w)
+    return _rk4_continuous(s, p, pl, uh, k, lo, hi, dt, substeps, tol, out, u_out, w)
+
+
+@njit(cache=True, error_model="numpy")
+def rk4_held_row(s, p, uh, lo, hi, dt, substeps, out, u_out, w):
+    """:func:`rk4_row` with the control ``clip(uh)`` held over the period (the ``OPEN`` mode)."""
+    n2 = 2 * N
+    x = w.x
+    tmp = w.tmp
+    k1 = w.k1
+    k2 = w.k2
+    k3 = w.k3
+    k4 = w.k4
+    u = w.u
+    acc = w.acc
+    for i in range(n2):
+        x[i] = s[i]
+    for a in range(M):
+        u[a] = min(max(uh[a], lo[a]), hi[a])
+        acc[a] = 0.0
+    h = dt / substeps
+    for _ in range(substeps):
+        for a in range(M):
+            acc[a] += u[a]
+        for i in range(N):
+            k1[i] = x[N + i]
+        _accel(x, p, u, k1)
+        for i in range(n2):
+            tmp[i] = x[i] + 0.5 * h * k1[i]
+        for i in range(N):
+            k2[i] = tmp[N + i]
+        _accel(tmp, p, u, k2)
+        for i in range(n2):
+            tmp[i] = x[i] + 0.5 * h * k2[i]
+        for i in range(N):
+            k3[i] = tmp[N + i]
+        _accel(tmp, p, u, k3)
+        for i in range(n2):
+            tmp[i] = x[i] + h * k3[i]
+        for i in range(N):
+            k4[i] = tmp[N + i]
+        _accel(tmp, p, u, k4)
+        for i in range(n2):
+            x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+    for a in range(M):
+        u_out[a] = acc[a] / substeps
+    return _store(x, out)
+
+
+@njit(cache=True, error_model="numpy")
+def _rk4_continuous(s, p, pl, uh, k, lo, hi, dt, substeps, tol, out, u_out, w):
+    """:func:`rk4_row` with the control ``clip(u*(stage) + uh)`` of every stage."""
     n2 = 2 * N
     x = w.x
     tmp = w.tmp
@@ -140,17 +209,9 @@ def rk4_row(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, w):
     for a in range(M):
         w.acc[a] = 0.0
         w.base[a] = uh[a]
-    if mode == SAMPLED:
-        flag |= law_row(x, pl, k, tol, w, w.law)
-        for a in range(M):
-            w.base[a] = uh[a] + w.law[a]
-    continuous = mode == CONTINUOUS
-    for a in range(M):  # the control of every stage, but in the continuous mode
-        u[a] = min(max(w.base[a], lo[a]), hi[a])
     h = dt / substeps
     for _ in range(substeps):
-        if continuous:
-            flag |= _feedback(x, pl, k, lo, hi, tol, w)
+        flag |= _feedback(x, pl, k, lo, hi, tol, w)
         for a in range(M):
             w.acc[a] += u[a]
         for i in range(N):
@@ -158,37 +219,38 @@ def rk4_row(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, w):
         _accel(x, p, u, k1)
         for i in range(n2):
             tmp[i] = x[i] + 0.5 * h * k1[i]
-        if continuous:
-            flag |= _feedback(tmp, pl, k, lo, hi, tol, w)
+        flag |= _feedback(tmp, pl, k, lo, hi, tol, w)
         for i in range(N):
             k2[i] = tmp[N + i]
         _accel(tmp, p, u, k2)
         for i in range(n2):
             tmp[i] = x[i] + 0.5 * h * k2[i]
-        if continuous:
-            flag |= _feedback(tmp, pl, k, lo, hi, tol, w)
+        flag |= _feedback(tmp, pl, k, lo, hi, tol, w)
         for i in range(N):
             k3[i] = tmp[N + i]
         _accel(tmp, p, u, k3)
         for i in range(n2):
             tmp[i] = x[i] + h * k3[i]
-        if continuous:
-            flag |= _feedback(tmp, pl, k, lo, hi, tol, w)
+        flag |= _feedback(tmp, pl, k, lo, hi, tol, w)
         for i in range(N):
             k4[i] = tmp[N + i]
         _accel(tmp, p, u, k4)
         for i in range(n2):
             x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+    for a in range(M):
+        u_out[a] = w.acc[a] / substeps
+    return flag | _store(x, out)
+
+
+@njit(cache=True, inline="always")
+def _store(x, out):
+    """``out = x``; ``FLAG_NONFINITE`` if an entry is not finite, else 0."""
     finite = True
-    for i in range(n2):
+    for i in range(2 * N):
         out[i] = x[i]
         if not math.isfinite(x[i]):
             finite = False
-    for a in range(M):
-        u_out[a] = w.acc[a] / substeps
-    if not finite:
-        flag |= FLAG_NONFINITE
-    return flag
+    return 0 if finite else FLAG_NONFINITE
 
 
 # --- rows: end

@@ -16,7 +16,7 @@ RecurrentPPO, an LSTM policy).  Validation episodes use seeds from 5 000, test e
 training episodes use small seeds, so the three never overlap.
 
 Threads: the environment kernels run on one thread (numba, no thread pool); torch gets ``threads``
-threads (default 1), which measured fastest for these small networks on two cores.
+threads (default 2), which measured fastest for one run of these small networks on two cores.
 """
 
 from __future__ import annotations
