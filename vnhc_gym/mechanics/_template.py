@@ -149,7 +149,6 @@ def _rk4_feedback(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, 
 @njit(cache=True, error_model="numpy")
 def rk4_held_row(s, p, uh, lo, hi, dt, substeps, out, u_out, w):
     """:func:`rk4_row` with the control ``clip(uh)`` held over the period (the ``OPEN`` mode)."""
-    n2 = 2 * N
     x = w.x
     tmp = w.tmp
     k1 = w.k1
@@ -158,7 +157,7 @@ def rk4_held_row(s, p, uh, lo, hi, dt, substeps, out, u_out, w):
     k4 = w.k4
     u = w.u
     acc = w.acc
-    for i in range(n2):
+    for i in range(2 * N):
         x[i] = s[i]
     for a in range(M):
         u[a] = min(max(uh[a], lo[a]), hi[a])
@@ -167,26 +166,14 @@ def rk4_held_row(s, p, uh, lo, hi, dt, substeps, out, u_out, w):
     for _ in range(substeps):
         for a in range(M):
             acc[a] += u[a]
-        for i in range(N):
-            k1[i] = x[N + i]
-        _accel(x, p, u, k1)
-        for i in range(n2):
-            tmp[i] = x[i] + 0.5 * h * k1[i]
-        for i in range(N):
-            k2[i] = tmp[N + i]
-        _accel(tmp, p, u, k2)
-        for i in range(n2):
-            tmp[i] = x[i] + 0.5 * h * k2[i]
-        for i in range(N):
-            k3[i] = tmp[N + i]
-        _accel(tmp, p, u, k3)
-        for i in range(n2):
-            tmp[i] = x[i] + h * k3[i]
-        for i in range(N):
-            k4[i] = tmp[N + i]
-        _accel(tmp, p, u, k4)
-        for i in range(n2):
-            x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+        _slope(x, p, u, k1)
+        _shift(x, 0.5 * h, k1, tmp)
+        _slope(tmp, p, u, k2)
+        _shift(x, 0.5 * h, k2, tmp)
+        _slope(tmp, p, u, k3)
+        _shift(x, h, k3, tmp)
+        _slope(tmp, p, u, k4)
+        _combine(x, h, k1, k2, k3, k4)
     for a in range(M):
         u_out[a] = acc[a] / substeps
     return _store(x, out)
@@ -195,7 +182,6 @@ def rk4_held_row(s, p, uh, lo, hi, dt, substeps, out, u_out, w):
 @njit(cache=True, error_model="numpy")
 def _rk4_continuous(s, p, pl, uh, k, lo, hi, dt, substeps, tol, out, u_out, w):
     """:func:`rk4_row` with the control ``clip(u*(stage) + uh)`` of every stage."""
-    n2 = 2 * N
     x = w.x
     tmp = w.tmp
     k1 = w.k1
@@ -203,43 +189,54 @@ def _rk4_continuous(s, p, pl, uh, k, lo, hi, dt, substeps, tol, out, u_out, w):
     k3 = w.k3
     k4 = w.k4
     u = w.u
-    for i in range(n2):
+    acc = w.acc
+    for i in range(2 * N):
         x[i] = s[i]
     flag = 0
     for a in range(M):
-        w.acc[a] = 0.0
+        acc[a] = 0.0
         w.base[a] = uh[a]
     h = dt / substeps
     for _ in range(substeps):
         flag |= _feedback(x, pl, k, lo, hi, tol, w)
         for a in range(M):
-            w.acc[a] += u[a]
-        for i in range(N):
-            k1[i] = x[N + i]
-        _accel(x, p, u, k1)
-        for i in range(n2):
-            tmp[i] = x[i] + 0.5 * h * k1[i]
+            acc[a] += u[a]
+        _slope(x, p, u, k1)
+        _shift(x, 0.5 * h, k1, tmp)
         flag |= _feedback(tmp, pl, k, lo, hi, tol, w)
-        for i in range(N):
-            k2[i] = tmp[N + i]
-        _accel(tmp, p, u, k2)
-        for i in range(n2):
-            tmp[i] = x[i] + 0.5 * h * k2[i]
+        _slope(tmp, p, u, k2)
+        _shift(x, 0.5 * h, k2, tmp)
         flag |= _feedback(tmp, pl, k, lo, hi, tol, w)
-        for i in range(N):
-            k3[i] = tmp[N + i]
-        _accel(tmp, p, u, k3)
-        for i in range(n2):
-            tmp[i] = x[i] + h * k3[i]
+        _slope(tmp, p, u, k3)
+        _shift(x, h, k3, tmp)
         flag |= _feedback(tmp, pl, k, lo, hi, tol, w)
-        for i in range(N):
-            k4[i] = tmp[N + i]
-        _accel(tmp, p, u, k4)
-        for i in range(n2):
-            x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+        _slope(tmp, p, u, k4)
+        _combine(x, h, k1, k2, k3, k4)
     for a in range(M):
-        u_out[a] = w.acc[a] / substeps
+        u_out[a] = acc[a] / substeps
     return flag | _store(x, out)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _slope(y, p, u, dy):
+    """``dy = (qd, a0(y) + Y(y) u)``: the state's time derivative at ``y`` under the control ``u``."""
+    for i in range(N):
+        dy[i] = y[N + i]
+    _accel(y, p, u, dy)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _shift(x, c, dy, out):
+    """``out = x + c dy``: an RK4 stage's state."""
+    for i in range(2 * N):
+        out[i] = x[i] + c * dy[i]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _combine(x, h, k1, k2, k3, k4):
+    """``x += h / 6 (k1 + 2 k2 + 2 k3 + k4)``: the RK4 step."""
+    for i in range(2 * N):
+        x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
 
 
 @njit(cache=True, inline="always")
