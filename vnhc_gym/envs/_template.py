@@ -18,7 +18,7 @@ from vnhc_gym.mechanics.kernels import FLAG_NONFINITE
 # isort: split
 # --- bindings: begin
 from vnhc_gym.envs._placeholder import DRAW_STAGES, draw, observe
-from vnhc_gym.mechanics._template import OPEN, N, _aux, _phi, rk4_held_row, rk4_row, work
+from vnhc_gym.mechanics._template import N, _aux, _phi, rk4_held_row, rk4_row, work
 
 # --- bindings: end
 # isort: split
@@ -26,7 +26,8 @@ from vnhc_gym.mechanics._template import OPEN, N, _aux, _phi, rk4_held_row, rk4_
 
 @njit(cache=True)
 def step(rows, buf, cfg, args):
-    """One control period of the episodes ``rows`` with the forces in ``buf.force``.
+    """One control period of the episodes ``rows`` with the forces in ``buf.force`` alone (the
+    ``OPEN`` mode; :func:`step_feedback` runs the law too).
 
     Per row: the velocity impulse (if any), RK4 into ``buf.next_state``, the impulse added, the new
     state accepted if finite (a row whose state became non-finite keeps its last finite state),
@@ -39,13 +40,36 @@ def step(rows, buf, cfg, args):
         r = rows[i]
         if kicks:
             kick_row(r, buf, cfg)
-        if cfg.mode == OPEN:  # the actions alone: the integrator without the law's calls (faster)
-            flag = rk4_held_row(buf.state[r], buf.params_true[r], buf.force[r], cfg.lo, cfg.hi, cfg.dt, cfg.substeps,
-                                buf.next_state[r], buf.force_applied[r], w)
-        else:
-            flag = rk4_row(buf.state[r], buf.params_true[r], buf.params_nominal[r], buf.force[r], cfg.gains,
-                           cfg.mode, cfg.lo, cfg.hi, cfg.dt, cfg.substeps, cfg.singular_tol, buf.next_state[r],
-                           buf.force_applied[r], w)
+        flag = rk4_held_row(buf.state[r], buf.params_true[r], buf.force[r], cfg.lo, cfg.hi, cfg.dt, cfg.substeps,
+                            buf.next_state[r], buf.force_applied[r], w)
+        buf.flags[r] = flag
+        if kicks:
+            for j in range(N):
+                buf.next_state[r, N + j] += buf.kick[r, j]
+        if not flag & FLAG_NONFINITE:
+            for j in range(2 * N):
+                buf.state[r, j] = buf.next_state[r, j]
+        _phi(buf.state[r], buf.params_true[r], buf.phi[r])
+        _aux(buf.state[r], buf.params_nominal[r], buf.aux[r])
+        observe(r, buf, cfg, args)
+    finish_rows(rows, buf, cfg)
+
+
+@njit(cache=True)
+def step_feedback(rows, buf, cfg, args):
+    """:func:`step` with the geometric law inside the integrator (``cfg.mode`` ``CONTINUOUS`` or
+    ``SAMPLED``, see ``rk4_row``).  A kernel of its own, so that environments that never run the
+    law in the loop never compile it.  (The rows' bookkeeping after RK4 is written out in both
+    kernels: a shared function inlined by numba reference-counts the bundles per row, 25 % slower.)"""
+    w = work()
+    kicks = cfg.impulse_prob > 0
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        if kicks:
+            kick_row(r, buf, cfg)
+        flag = rk4_row(buf.state[r], buf.params_true[r], buf.params_nominal[r], buf.force[r], cfg.gains, cfg.mode,
+                       cfg.lo, cfg.hi, cfg.dt, cfg.substeps, cfg.singular_tol, buf.next_state[r], buf.force_applied[r],
+                       w)
         buf.flags[r] = flag
         if kicks:
             for j in range(N):

@@ -44,9 +44,9 @@ def step_module(task: Task) -> ModuleType:
                                  _mechanics_kernels.__file__ or ""]
     key = module_key(["step", system, hooks], sources)
     block = (f"from {hooks} import DRAW_STAGES, draw, observe\n"
-             f"from {system} import OPEN, N, _aux, _phi, rk4_held_row, rk4_row, work\n\n")
+             f"from {system} import N, _aux, _phi, rk4_held_row, rk4_row, work\n\n")
     return load_module(key, lambda: fill_template(_TEMPLATE, "bindings", block, f"task {task.name!r}"),
-                       label=f"the {task.name} environment", required=("step", "reset"))
+                       label=f"the {task.name} environment", required=("step", "step_feedback", "reset"))
 
 
 def compiled(dispatcher: Any, *args: Any) -> Any:
@@ -106,10 +106,11 @@ class Batch:
         self._act = compiled(accept_actions, rows, np.zeros((1, self.task.act_dim)), self.cfg.bound, self.buf.force,
                              self.buf.action)
         self._act32: Any = None  # the float32 variant, resolved on the first float32 actions
+        self._step_feedback: Any = None  # the step with the law in the loop, resolved on first use
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        for name in ("kernels", "_step", "_reset", "_act", "_act32"):
+        for name in ("kernels", "_step", "_step_feedback", "_reset", "_act", "_act32"):
             state[name] = None  # compiled code: loaded again from the cache
         return state
 
@@ -147,7 +148,12 @@ class Batch:
 
     def step(self, rows: NDArray[np.intp]) -> None:
         """Advance the episodes ``rows`` by one control period with their stored forces."""
-        self._step(rows, self.buf, self.cfg, self.task.args)
+        if self.feedback == "open":
+            self._step(rows, self.buf, self.cfg, self.task.args)
+            return
+        if self._step_feedback is None:
+            self._step_feedback = compiled(self.kernels.step_feedback, rows, self.buf, self.cfg, self.task.args)
+        self._step_feedback(rows, self.buf, self.cfg, self.task.args)
 
     def set_feedback(self, feedback: str = "open", gains: Any = 1.0) -> None:
         """Run the geometric law inside the integrator, on top of the held force.
