@@ -1,4 +1,4 @@
-"""Acceptance tests of the paper's two systems (flocking, USV in a current).
+"""Acceptance tests of the paper's two systems (flocking, USV in a current), and of the sled.
 
 The expected values are hand-derived closed forms (written out here, in numpy, independently of
 the library), the paper's printed invariance controls, and the exact closed-loop solution
@@ -15,7 +15,15 @@ import numpy as np
 import pytest
 
 from vnhc_gym.mechanics import ConstrainedSystem, simulate
-from vnhc_gym.systems import CURRENTS, FLOCKING_PRESETS, USV_PRESETS, make_flocking, make_usv, random_field_params
+from vnhc_gym.systems import (
+    CURRENTS,
+    FLOCKING_PRESETS,
+    USV_PRESETS,
+    make_flocking,
+    make_sled,
+    make_usv,
+    random_field_params,
+)
 from vnhc_gym.systems.currents import RANDOM_PARAM_NAMES, RANDOM_WEIGHTS
 
 CURRENT_NAMES = ("northeast", "anticyclone", "vortex", "shear", "random")
@@ -506,3 +514,84 @@ def test_random_current_kernel_has_only_four_field_trig_calls() -> None:
     calls = re.findall(r"\bp(?:sin|cos)\(([^()]*(?:\([^()]*\))?[^()]*)\)", body)
     assert 0 < len(calls) <= 6, calls
     assert "math.sin" not in body and "math.cos" not in body
+
+
+# ---------------------------------------------------------------------- the sled
+# The sled (knife-edge blade, offset centre of mass) against its hand-derived Euler-Lagrange
+# equations, its constraint and energy typed by hand, and the law's exponential decay.
+#
+# Hand derivation, from ``T = m/2 [(xd - a sin(th) thd)^2 + (yd + a cos(th) thd)^2] + I/2 thd^2``
+# and the forces ``u_1 (cos th, sin th, 0) + u_2 (0, 0, 1)``:
+#
+#     m xdd - m a sin(th) thdd - m a cos(th) thd^2 = cos(th) u_1
+#     m ydd + m a cos(th) thdd - m a sin(th) thd^2 = sin(th) u_1
+#     -m a sin(th) xdd + m a cos(th) ydd + (I + m a^2) thdd = u_2
+#
+# (the theta equation's velocity terms cancel), i.e. ``M qdd = F u + (m a cos(th) thd^2, m a sin(th) thd^2, 0)``.
+
+
+def _sled_states(rng: np.random.Generator, b: int) -> np.ndarray:
+    return np.column_stack([rng.uniform(-5, 5, (b, 2)), rng.uniform(-np.pi, np.pi, b), rng.uniform(-3, 3, (b, 3))])
+
+
+def _sled_params(rng: np.random.Generator, b: int) -> np.ndarray:
+    # (m, I, a, v_ref), away from the defaults so no default is baked into a formula.
+    return np.column_stack([rng.uniform(5, 40, b), rng.uniform(0.5, 5, b), rng.uniform(0.1, 0.8, b),
+                            rng.uniform(0.5, 3, b)])
+
+
+def _sled_mass_and_bias(s: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    th, thd = s[:, 2], s[:, 5]
+    m, inertia, a = p[:, 0], p[:, 1], p[:, 2]
+    sn, cs = np.sin(th), np.cos(th)
+    mass = np.zeros((len(s), 3, 3))
+    mass[:, 0, 0] = mass[:, 1, 1] = m
+    mass[:, 0, 2] = mass[:, 2, 0] = -m * a * sn
+    mass[:, 1, 2] = mass[:, 2, 1] = m * a * cs
+    mass[:, 2, 2] = inertia + m * a**2
+    forces = np.zeros((len(s), 3, 2))
+    forces[:, 0, 0], forces[:, 1, 0], forces[:, 2, 1] = cs, sn, 1.0
+    bias = np.column_stack([m * a * cs * thd**2, m * a * sn * thd**2, np.zeros(len(s))])
+    return mass, forces, bias
+
+
+def test_sled_dynamics_match_euler_lagrange() -> None:
+    model = make_sled()
+    rng = np.random.default_rng(0)
+    s, p = _sled_states(rng, 30), _sled_params(rng, 30)
+    mass, forces, bias = _sled_mass_and_bias(s, p)
+    a0, y = model.dynamics(s, p)
+    np.testing.assert_allclose(a0, np.linalg.solve(mass, bias[..., None])[..., 0], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(y, np.linalg.solve(mass, forces), rtol=1e-10, atol=1e-12)
+
+
+def test_sled_constraint_decoupling_and_energy() -> None:
+    model = make_sled()
+    rng = np.random.default_rng(1)
+    s, p = _sled_states(rng, 30), _sled_params(rng, 30)
+    th, xd, yd, thd = s[:, 2], s[:, 3], s[:, 4], s[:, 5]
+    sn, cs = np.sin(th), np.cos(th)
+    # No sideways slip of the blade; forward speed at v_ref.
+    np.testing.assert_allclose(model.phi(s, p), np.column_stack([-sn * xd + cs * yd, cs * xd + sn * yd - p[:, 3]]),
+                               atol=1e-12)
+    # C = (d phi / d qd) M^-1 F: the slip is steered through the torque only, the speed through the thrust.
+    m, inertia, a = p[:, 0], p[:, 1], p[:, 2]
+    c, _ = model.decoupling(s, p)
+    expected = np.zeros((30, 2, 2))
+    expected[:, 0, 1] = -a / inertia
+    expected[:, 1, 0] = 1 / m
+    np.testing.assert_allclose(c, expected, rtol=1e-10, atol=1e-12)
+    kinetic = m / 2 * ((xd - a * sn * thd) ** 2 + (yd + a * cs * thd) ** 2) + inertia / 2 * thd**2
+    np.testing.assert_allclose(model.energy(s, p), kinetic, rtol=1e-10)
+
+
+def test_sled_phi_decays_exponentially() -> None:
+    model = make_sled()
+    rng = np.random.default_rng(2)
+    s0 = _sled_states(rng, 20)
+    gains = np.array([0.7, 2.0])
+    # dt = 2.5 ms: the sled turns at up to 3 rad/s, and RK4's error (which falls 16x per halving of dt
+    # here) must stay below the decay check's 1e-5 relative tolerance over 5 s.
+    tr = simulate(model, s0, 0.0025, 2000, feedback="continuous", gains=gains, record_every=20)
+    assert not np.any(tr.flags)
+    assert_exponential_decay(tr.t, tr.phi, gains)

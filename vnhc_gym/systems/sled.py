@@ -15,13 +15,12 @@ constraint has two components,
 .. math::
 
     \\phi^1 = -\\sin\\theta\\,\\dot x + \\cos\\theta\\,\\dot y, \\qquad
-    \\phi^2 = \\dot\\theta - \\kappa\\,(\\cos\\theta\\,\\dot x + \\sin\\theta\\,\\dot y):
+    \\phi^2 = \\cos\\theta\\,\\dot x + \\sin\\theta\\,\\dot y - v_{ref}:
 
-no sideways slip of the blade, and a turn rate in proportion to the forward speed (a circle of
-curvature ``kappa``).  Nothing physical holds the blade: the controller does.  The decoupling
-matrix is full, ``C = [[0, -a/I], [-kappa/m, 1/I]]`` with ``det C = -a kappa / (I m)``: the slip
-is steered only through the torque, by way of the offset mass, and the law needs ``a != 0`` and
-``kappa != 0``.
+no sideways slip of the blade, and the forward speed at the cruise speed ``v_ref``.  Nothing
+physical holds the blade: the controller does.  The decoupling matrix is
+``C = [[0, -a/I], [1/m, 0]]`` with ``det C = a / (I m)``: the slip is steered only through the
+torque, by way of the offset mass (the law needs ``a != 0``), and the speed only through the thrust.
 """
 
 from __future__ import annotations
