@@ -36,6 +36,7 @@ from vnhc_gym.mechanics._template import _dyn as _unit_dyn
 from vnhc_gym.mechanics._template import _energy as _unit_energy
 from vnhc_gym.mechanics._template import _phi_at as _unit_phi_at
 from vnhc_gym.mechanics._template import _phi_h as _unit_phi_h
+from vnhc_gym.mechanics._template import _tn as _unit_tn
 
 NAME = "placeholder-fleet"
 R = 2  #: copies of the unit
@@ -43,6 +44,7 @@ N = 2  #: the fleet's coordinates
 NP = 1  #: the fleet's parameters
 PARAM_NAMES = ("mass",)
 PARAM_DEFAULTS = (1.0,)
+PARAM_POSITIVE = (True,)
 OUTPUT_NAMES = ("position_0", "position_1")
 #: (R, 2 UN): the fleet-state index of each entry of copy b's unit state (q then qd).
 STATE_MAP = np.array([[0, 2], [1, 3]], dtype=np.int64)
@@ -66,12 +68,12 @@ NAUX = R * UNAUX
 @njit(cache=True)
 def _scratch():
     """Unit-sized scratch vectors (one allocation): state, parameters, controls or outputs, a
-    derivative, Y, C by block rows and G."""
+    derivative or the sizes of the singular test, Y, C by block rows and G."""
     k = max(UM, UNG, UNAUX, 1)
     o1 = 2 * UN
     o2 = o1 + max(UNP, 1)
     o3 = o2 + k
-    o4 = o3 + 2 * UN
+    o4 = o3 + 2 * max(UN, UM)
     o5 = o4 + UN * UM
     o6 = o5 + UM * BLOCK
     flat = np.empty(o6 + UM)
@@ -131,6 +133,26 @@ def _cg(s, p, C, G):
             G[b * UM + a] = ug[a]
             for j in range(BLOCK):
                 C[b * UM + a, j] = uc[a, j]
+
+
+@njit(cache=True, error_model="numpy")
+def _cgn(s, p, C, G, sizes):
+    """C, G(phi) and the squared sizes of the singular test, copy by copy (one gather per copy).
+
+    Copy ``b``'s rows of ``d phi/d qd`` and its input fields involve only its unit's coordinates,
+    so their sizes are the unit's: the fleet's measure is the smallest of its copies' measures."""
+    us, up, _, ud, _, uc, ug = _scratch()
+    for b in range(R):
+        _gather(b, s, p, us, up)
+        _unit_cg(us, up, uc, ug)
+        for a in range(UM):
+            G[b * UM + a] = ug[a]
+            for j in range(BLOCK):
+                C[b * UM + a, j] = uc[a, j]
+        _unit_tn(us, up, ud)  # 2 UM sizes, in the 2 UN-long derivative scratch
+        for a in range(UM):
+            sizes[b * UM + a] = ud[a]
+            sizes[M + b * UM + a] = ud[UM + a]
 
 
 @njit(cache=True, error_model="numpy")

@@ -1,7 +1,9 @@
 """The system that :mod:`vnhc_gym.mechanics._template` runs on when imported as a module of its own.
 
 A unit point mass on a line, pushed by one force, held to ``phi = qd`` (come to rest): ``n = m = 1``,
-``qdd = u / mass``, ``C = 1 / mass``, ``G = 0``, one extra output (the position).  Code
+``qdd = u / mass``, ``C = 1 / mass``, ``G = 0``, one extra output (the position).  The squared sizes
+of the singular test are ``J M^-1 J^T = 1 / mass`` (``J = d phi/d qd = 1``) and
+``Y M Y = 1 / mass`` (``Y = 1 / mass``), so its measure is 1.  Code
 generation replaces the import of this module with the same names written out for a real
 system (:func:`vnhc_gym.mechanics.codegen.generate_source`), so these functions document the
 signatures that the generated ones have.
@@ -22,6 +24,7 @@ HOLONOMIC = False
 BLOCK = 1  #: C is block-diagonal with blocks of this size (1: diagonal; M: full), stored by block rows
 PARAM_NAMES = ("mass",)
 PARAM_DEFAULTS = (1.0,)
+PARAM_POSITIVE = (True,)  #: whether each parameter is declared positive (the checked methods refuse <= 0)
 OUTPUT_NAMES = ("position",)
 
 
@@ -74,6 +77,21 @@ def _cg(s: np.ndarray, p: np.ndarray, C: np.ndarray, G: np.ndarray) -> None:
     ``G = d phi/dq . qd + d phi/d qd . a0``."""
     C[0, 0] = 1.0 / p[0]
     G[0] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def _tn(s: np.ndarray, p: np.ndarray, sizes: np.ndarray) -> None:
+    """The squared sizes of the singular test: ``sizes[b] = J_b M^-1 J_b^T`` with ``J = d phi/d qd``,
+    then ``sizes[M + a] = Y^a . M Y^a = f^a . Y^a``."""
+    sizes[0] = 1.0 / p[0]
+    sizes[1] = 1.0 / p[0]
+
+
+@njit(cache=True, error_model="numpy")
+def _cgn(s: np.ndarray, p: np.ndarray, C: np.ndarray, G: np.ndarray, sizes: np.ndarray) -> None:
+    """:func:`_cg` and :func:`_tn`: what the law needs besides ``phi``."""
+    _cg(s, p, C, G)
+    _tn(s, p, sizes)
 
 
 @njit(cache=True, error_model="numpy")

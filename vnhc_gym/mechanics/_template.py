@@ -18,7 +18,16 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from vnhc_gym.mechanics.kernels import FLAG_NONFINITE, pcos, psin, solve_blocks  # noqa: F401  (generated: psin..)
+from vnhc_gym.mechanics.kernels import (  # noqa: F401  (generated code: psin, pcos)
+    FLAG_NONFINITE,
+    FLAG_SINGULAR,
+    pcos,
+    psin,
+    solve_blocks,
+    transversality,
+    transversality_diagonal,
+    transversality_pairs,
+)
 
 # isort: split
 # --- system: begin (code generation writes one system's functions and constants here)
@@ -32,6 +41,7 @@ from vnhc_gym.mechanics._placeholder import (  # noqa: F401
     OUTPUT_NAMES,
     PARAM_DEFAULTS,
     PARAM_NAMES,
+    PARAM_POSITIVE,
     M,
     N,
     _accel,
@@ -39,11 +49,13 @@ from vnhc_gym.mechanics._placeholder import (  # noqa: F401
     _aux,
     _aux_at,
     _cg,
+    _cgn,
     _dyn,
     _energy,
     _phi,
     _phi_at,
     _phi_h,
+    _tn,
 )
 
 # --- system: end
@@ -64,7 +76,7 @@ class Work(NamedTuple):
     k1: np.ndarray  # stage derivatives (2N each)
     k2: np.ndarray
     k3: np.ndarray
-    k4: np.ndarray
+    k4: np.ndarray  # (also the squared sizes of the law's singular test while the law runs, see _sizes)
     u: np.ndarray  # the control of the current stage (M)
     base: np.ndarray  # the held part of the control (M)
     law: np.ndarray  # u* at a stage (M)
@@ -87,13 +99,37 @@ def work() -> Work:
                 flat[o + 6 * M:o + 7 * M], flat[o + 7 * M:o + 7 * M + M * BLOCK].reshape((M, BLOCK)))
 
 
+@njit(cache=True, inline="always")
+def _sizes(w):
+    """Where the law keeps the squared sizes of its singular test (``2 M`` entries, see
+    ``transversality``): in ``w.k4``, which no RK4 stage uses while the law is evaluated (stage 4
+    writes it after its law), so ``Work`` needs no further vector.  (Every array of ``Work`` costs
+    reference counting at each call that passes it.)  A system with more controls than coordinates
+    (its ``C`` is always singular) gets a vector of its own."""
+    return w.k4 if M <= N else np.empty(2 * M)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _measure(c, sizes):
+    """The transversality measure of ``c`` (see ``transversality``), by the closed form of the
+    module's block size (a constant: only one form is compiled in)."""
+    if BLOCK == 1:
+        return transversality_diagonal(c, sizes)
+    if BLOCK == 2:
+        return transversality_pairs(c, sizes)
+    return transversality(c, sizes)
+
+
 @njit(cache=True, error_model="numpy")
 def law_row(s, p, k, tol, w, u):
     """``u = C^-1 (-K phi - G)`` at state ``s`` (``-K1 phi_h - K2 psi - G`` if holonomic).
 
-    Returns ``FLAG_SINGULAR`` (and ``u = 0``) where ``C`` is singular (see ``solve_blocks``), else 0.
+    Returns ``FLAG_SINGULAR`` (and ``u = 0``) where the input fields are (nearly) tangent to the
+    constraint: where the measure of ``transversality`` is not above ``tol`` (or not finite), else 0.
+    Overwrites ``w.k4`` (see :func:`_sizes`).
     """
-    _cg(s, p, w.C, w.G)
+    sizes = _sizes(w)
+    _cgn(s, p, w.C, w.G, sizes)
     _phi(s, p, w.ph)
     if HOLONOMIC:
         _phi_h(s, p, w.hol)
@@ -102,7 +138,12 @@ def law_row(s, p, k, tol, w, u):
     else:
         for b in range(M):
             w.G[b] = -k[b] * w.ph[b] - w.G[b]
-    return solve_blocks(w.C, w.G, u, tol)
+    if not _measure(w.C, sizes) > tol:
+        for a in range(M):
+            u[a] = 0.0
+        return FLAG_SINGULAR
+    # The verdict is taken: the solve refuses only an exactly zero pivot.
+    return solve_blocks(w.C, w.G, u, 0.0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -270,6 +311,16 @@ def law(S, P, K, tol, U, flags):
     w = work()
     for r in range(S.shape[0]):
         flags[r] = law_row(S[r], P[r], K[r], tol, w, U[r])
+
+
+@njit(cache=True, error_model="numpy")
+def transversal(S, P, out):
+    """The measure of the singular test (see ``transversality``) of every row."""
+    w = work()
+    for r in range(S.shape[0]):
+        sizes = _sizes(w)
+        _cgn(S[r], P[r], w.C, w.G, sizes)
+        out[r] = _measure(w.C, sizes)
 
 
 @njit(cache=True)

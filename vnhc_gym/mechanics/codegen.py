@@ -158,7 +158,7 @@ def generate_source(law: SymbolicLaw, outputs: Mapping[str, sp.Expr] | None = No
 
     Besides the kernels, the module records what :class:`~vnhc_gym.mechanics.ConstrainedSystem`
     needs to run without sympy: ``NAME``, ``N``, ``M``, ``NP``, ``NG``, ``NAUX``, ``HOLONOMIC``,
-    ``BLOCK``, ``PARAM_NAMES``, ``PARAM_DEFAULTS`` and ``OUTPUT_NAMES``.
+    ``BLOCK``, ``PARAM_NAMES``, ``PARAM_DEFAULTS``, ``PARAM_POSITIVE`` and ``OUTPUT_NAMES``.
     """
     import sympy as sp
 
@@ -172,6 +172,8 @@ def generate_source(law: SymbolicLaw, outputs: Mapping[str, sp.Expr] | None = No
     diagonal = all(sp.simplify(law.C[b, a]) == 0 for b in range(m) for a in range(m) if a != b)
     defaults = ", ".join(_literal(v) for v in system.default_param_values())
     phi_h = law.phi_h if law.phi_h is not None else sp.zeros(m, 1)
+    jn, yn = law.factor_sizes()
+    positive = system.param_positive
     outs = list(outputs.values())
     functions = [
         # The stage state of RK4 is z (the name fixes the order of the sums; see _Writer.body).
@@ -195,6 +197,12 @@ def generate_source(law: SymbolicLaw, outputs: Mapping[str, sp.Expr] | None = No
                    w.body([(f"C[{b}, {0 if diagonal else a}]", law.C[b, a]) for b in range(m) for a in range(m)
                            if not diagonal or a == b]
                           + [(f"G[{b}]", law.G[b]) for b in range(m)])),
+        w.function("_tn(s, p, sizes)", "The squared sizes of the singular test: J_b M^-1 J_b^T, then f^a . Y^a.",
+                   w.body([(f"sizes[{b}]", jn[b]) for b in range(m)]
+                          + [(f"sizes[{m + a}]", yn[a]) for a in range(m)])),
+        # A function of its own, not one body with _cg: C's bits must not depend on the extra terms.
+        w.function("_cgn(s, p, C, G, sizes)", "C (by block rows), G(phi) and the squared sizes.",
+                   ["_cg(s, p, C, G)", "_tn(s, p, sizes)"]),
         w.function("_dyn(s, p, a0, Y)", "Drift a0 and input fields Y.",
                    w.body([(f"a0[{i}]", law.a0[i]) for i in range(n)]
                           + [(f"Y[{i}, {a}]", law.Y[i, a]) for i in range(n) for a in range(m)])),
@@ -205,6 +213,7 @@ def generate_source(law: SymbolicLaw, outputs: Mapping[str, sp.Expr] | None = No
         f"NAUX = {len(outputs)}", f"HOLONOMIC = {law.phi_h is not None}", f"BLOCK = {1 if diagonal else m}",
         f"PARAM_NAMES = {tuple(str(p) for p in w.param_syms)!r}",
         f"PARAM_DEFAULTS = ({defaults}{',' if len(w.param_syms) == 1 else ''})",
+        f"PARAM_POSITIVE = {positive!r}",
         f"OUTPUT_NAMES = {tuple(outputs)!r}",
     ]
     block = "\n".join(constants) + "\n\n\n" + "\n\n\n".join(functions) + "\n\n"

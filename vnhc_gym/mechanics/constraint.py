@@ -104,6 +104,29 @@ class SymbolicLaw:
         """Length of the gain vector: ``m`` (``diag K``) or ``2 m`` (``diag K1``, ``diag K2``)."""
         return 2 * self.system.m if self.holonomic else self.system.m
 
+    def factor_sizes(self) -> tuple[sp.Matrix, sp.Matrix]:
+        """Squared sizes, in the metric, of the two factors of ``C = J Y`` (``J = d phi/d qd``).
+
+        Returns
+        -------
+        (jn, yn) : sympy.Matrix, each ``m x 1``
+            ``jn[b] = J_b M^-1 J_b^T``, the squared size of the covector ``J_b`` (row ``b`` of
+            ``J``) in the inverse metric, and ``yn[a] = Y^a . M Y^a = f^a . Y^a``, the squared size
+            of the input field ``Y^a``.  By Cauchy-Schwarz ``|C^{ba}| <= sqrt(jn[b] yn[a])``: the
+            normalised ``C^{ba} / sqrt(jn[b] yn[a])`` is the cosine of the angle between the
+            gradient of ``phi^b`` and ``Y^a``, the quantity of the law's singular test.
+        """
+        system = self.system
+        jac = self.phi.jacobian(sp.Matrix(system.qd))
+        lifted = system._solve_mass(jac.T)  # column b: M^-1 J_b^T, the gradient of phi^b as a vector
+        forces = system.control_forces
+        m = system.m
+        # Simplified: the sizes often lose every trigonometric factor (sin^2 + cos^2 = 1), which
+        # keeps the singular test cheap on the law's hot path.
+        jn = sp.Matrix([sp.simplify(sum(jac[b, i] * lifted[i, b] for i in range(system.n))) for b in range(m)])
+        yn = sp.Matrix([sp.simplify(sum(forces[i, a] * self.Y[i, a] for i in range(system.n))) for a in range(m)])
+        return jn, yn
+
     def control(self, gains: sp.Matrix | None = None) -> sp.Matrix:
         """Closed-form ``u* = C^-1 (-K phi - G)`` (for display; the numeric path solves ``C u = r``)."""
         m = self.system.m

@@ -22,13 +22,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from vnhc_gym.mechanics._checks import check_param
 from vnhc_gym.mechanics.codegen import fill_template, splice
 
 if TYPE_CHECKING:
     from vnhc_gym.mechanics.constraint import SymbolicLaw
     from vnhc_gym.mechanics.model import ConstrainedSystem
 
-__all__ = ["FleetLayout", "check_autonomous", "fleet_source"]
+__all__ = ["FleetLayout", "check_autonomous", "fleet_positive", "fleet_source"]
 
 _HERE = Path(__file__).parent
 
@@ -80,6 +81,8 @@ class FleetLayout:
             raise ValueError(f"param_map must have shape ({sm.shape[0]}, n_unit_params), got {pm.shape}")
         if len(self.param_defaults) != len(self.param_names):
             raise ValueError("param_defaults and param_names must have the same length")
+        for name, value in zip(self.param_names, self.param_defaults, strict=True):
+            check_param(name, value, False, f"FleetLayout {self.name!r} param_defaults")  # signs: see fleet_positive
         n_params = len(self.param_names)
         if sm.min() < 0 or sm.max() >= 2 * self.n or pm.min(initial=0) < 0 or pm.max(initial=0) >= n_params:
             raise ValueError("state_map / param_map index outside the fleet's state / parameters")
@@ -126,6 +129,16 @@ def check_autonomous(law: SymbolicLaw, own: NDArray[np.bool_]) -> None:
             raise ValueError(f"shared coordinate {system.q[i]} is moved by a control: not a fleet")
 
 
+def fleet_positive(unit: ConstrainedSystem, layout: FleetLayout) -> tuple[bool, ...]:
+    """Which fleet parameters are declared positive: those that some copy reads as a positive unit
+    parameter."""
+    positive = np.zeros(len(layout.param_names), dtype=bool)
+    unit_positive = np.asarray(unit.param_positive, dtype=bool)
+    for row in layout.param_map:
+        positive[row[unit_positive]] = True
+    return tuple(bool(v) for v in positive)
+
+
 def _array(a: NDArray[np.generic]) -> str:
     return f"np.array({a.tolist()!r}, dtype=np.{a.dtype.name})"
 
@@ -141,6 +154,7 @@ def fleet_source(unit: ConstrainedSystem, layout: FleetLayout) -> str:
         f"from {u} import {names}",
         f"from {u} import _accel_at as _unit_accel_at, _aux_at as _unit_aux_at, _phi_at as _unit_phi_at",
         f"from {u} import _cg as _unit_cg, _dyn as _unit_dyn, _energy as _unit_energy, _phi_h as _unit_phi_h",
+        f"from {u} import _tn as _unit_tn",
         "",
         f"NAME = {layout.name!r}",
         f"R = {layout.replicas}",
@@ -148,6 +162,7 @@ def fleet_source(unit: ConstrainedSystem, layout: FleetLayout) -> str:
         f"NP = {len(layout.param_names)}",
         f"PARAM_NAMES = {tuple(layout.param_names)!r}",
         f"PARAM_DEFAULTS = {tuple(float(v) for v in layout.param_defaults)!r}",
+        f"PARAM_POSITIVE = {fleet_positive(unit, layout)!r}",
         f"OUTPUT_NAMES = {tuple(layout.output_names)!r}",
         f"STATE_MAP = {_array(layout.state_map)}",
         f"PARAM_MAP = {_array(layout.param_map)}",

@@ -1,4 +1,5 @@
-"""Numba helpers of the generated kernels: status flags, a small linear solve and inline sin/cos.
+"""Numba helpers of the generated kernels: status flags, the transversality measure of the law's
+singular test, a small linear solve and inline sin/cos.
 
 Task authors may call :func:`psin`, :func:`pcos` and :func:`psincos` in their own kernels (they are
 re-exported by :mod:`vnhc_gym.kernels`): the generated system code uses them for every sine and
@@ -7,14 +8,179 @@ cosine, so a task that computes the same quantity with them gets the same bits.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
-__all__ = ["FLAG_NONFINITE", "FLAG_SINGULAR", "SINCOS_MAX_ARG", "pcos", "psin", "psincos", "solve_blocks"]
+__all__ = ["FLAG_NONFINITE", "FLAG_SINGULAR", "SINCOS_MAX_ARG", "pcos", "psin", "psincos", "solve_blocks",
+           "transversality", "transversality_diagonal", "transversality_pairs"]
 
 # Bits of the per-row status flag returned by the generated kernels.
-FLAG_SINGULAR = 1  #: C was singular or ill-conditioned at some evaluation (the law's u was set to 0).
+FLAG_SINGULAR = 1  #: the input fields were (nearly) tangent to the constraint at some evaluation (u* set to 0).
 FLAG_NONFINITE = 2  #: the state became non-finite.
+
+#: Largest number of Jacobi sweeps for a block of size 3 or more (convergence is quadratic: a few do).
+_JACOBI_SWEEPS = 60
+
+# The measures are inlined into their callers (numba's IR inlining) and their loops have no early
+# exit: as a call with array arguments, or with a return inside the loop, the test would cost
+# several times the rest of the law on a diagonal C.  Degenerate and non-finite inputs show up as a
+# NaN or inf ratio and are sorted out afterwards, off the hot path, by _degenerate.
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def transversality(c: np.ndarray, sizes: np.ndarray) -> float:
+    """How far a block-diagonal ``C`` is from singular, relative to the factors it is built from.
+
+    ``C^{ba} = J_b . Y^a`` pairs the rows ``J_b = d phi^b / d qd`` with the input fields ``Y^a``.
+    ``sizes`` holds their squared sizes in the metric: ``sizes[b] = J_b M^-1 J_b^T`` and
+    ``sizes[m + a] = Y^a . M Y^a`` (``2 m`` entries).  The measure is the smallest singular value
+    of the normalised matrix ``C^{ba} / (|J_b| |Y^a|)``, over the diagonal blocks of ``C`` (stored
+    by block rows in ``c``, shape ``(m, k)``, as in :func:`solve_blocks`).  Each normalised entry
+    is the cosine of the angle, in the metric, between the gradient of ``phi^b`` and ``Y^a``
+    (Cauchy-Schwarz), so the measure lies in ``[0, 1]`` up to rounding; it is 0 where the inputs
+    are tangent to the constraint, and it does not change when masses, units, constraint
+    components or controls are rescaled.
+
+    Closed forms for blocks of size 1 (:func:`transversality_diagonal`) and 2
+    (:func:`transversality_pairs`), one-sided Jacobi rotations for larger blocks.  Returns 0 when
+    a row of ``d phi/d qd`` or an input field has zero size (that row or column of ``C`` is zero
+    too), NaN when an entry or a size is not finite.  Nothing is modified.
+    """
+    k = c.shape[1]
+    if k == 1:
+        return transversality_diagonal(c, sizes)
+    if k == 2:
+        return transversality_pairs(c, sizes)
+    return _transversality_jacobi(c, sizes)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def transversality_diagonal(c: np.ndarray, sizes: np.ndarray) -> float:
+    """:func:`transversality` of a diagonal ``C`` (``c`` of shape ``(m, 1)``): the smallest
+    ``|C^{bb}| / (|J_b| |Y^b|)``."""
+    m = c.shape[0]
+    rho = np.inf
+    ok = True
+    for i in range(m):
+        a = sizes[i]
+        b = sizes[m + i]
+        # sqrt of each factor, not of the product: the product of two squared sizes can overflow.
+        r = abs(c[i, 0]) / (math.sqrt(a) * math.sqrt(b))
+        ok &= (r < np.inf) & (a < np.inf) & (b < np.inf)  # False for NaN too
+        rho = min(rho, r)
+    return rho if ok else _degenerate(c, sizes)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def transversality_pairs(c: np.ndarray, sizes: np.ndarray) -> float:
+    """:func:`transversality` of a ``C`` made of ``2 x 2`` diagonal blocks (``c`` of shape ``(m, 2)``).
+
+    For a ``2 x 2`` matrix ``sigma_min = |det| / sigma_max`` with
+    ``sigma_max^2 = (F + sqrt(F^2 - 4 det^2)) / 2`` and ``F`` the squared Frobenius norm; the
+    normalised entries are cosines, so nothing here over- or underflows unless a block is zero."""
+    m = c.shape[0]
+    rho = np.inf
+    ok = True
+    for blk in range(0, m, 2):
+        sj0 = math.sqrt(sizes[blk])
+        sj1 = math.sqrt(sizes[blk + 1])
+        sy0 = math.sqrt(sizes[m + blk])
+        sy1 = math.sqrt(sizes[m + blk + 1])
+        a00 = c[blk, 0] / (sj0 * sy0)
+        a01 = c[blk, 1] / (sj0 * sy1)
+        a10 = c[blk + 1, 0] / (sj1 * sy0)
+        a11 = c[blk + 1, 1] / (sj1 * sy1)
+        det = a00 * a11 - a01 * a10
+        f = a00 * a00 + a01 * a01 + a10 * a10 + a11 * a11
+        smax = math.sqrt(0.5 * (f + math.sqrt(max(f * f - 4.0 * det * det, 0.0))))
+        r = abs(det) / smax  # NaN for a zero block (0 / 0)
+        ok &= (r < np.inf) & (sj0 < np.inf) & (sj1 < np.inf) & (sy0 < np.inf) & (sy1 < np.inf)
+        rho = min(rho, r)
+    return rho if ok else _degenerate(c, sizes)
+
+
+@njit(cache=True, error_model="numpy")
+def _finite(c, sizes):
+    """Whether every entry of ``c`` and every size is finite."""
+    m, k = c.shape
+    for i in range(m):
+        if not (sizes[i] < np.inf and sizes[m + i] < np.inf):
+            return False
+        for j in range(k):
+            if not abs(c[i, j]) < np.inf:
+                return False
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _degenerate(c, sizes):
+    """The measure where a closed form met a NaN or inf ratio: NaN if an entry of ``c`` or a size is
+    not finite; else 0 (a size or a block is zero: a row or column of ``C`` vanishes)."""
+    return 0.0 if _finite(c, sizes) else np.nan
+
+
+@njit(cache=True, error_model="numpy")
+def _transversality_jacobi(c, sizes):
+    """:func:`transversality` for blocks of any size, by one-sided Jacobi rotations."""
+    if not _finite(c, sizes):
+        return np.nan
+    m, k = c.shape
+    t = np.empty((k, k))  # the normalised block being rotated (only systems with blocks of 3 or more)
+    rho = np.inf
+    for blk in range(0, m, k):
+        degenerate = False
+        for i in range(blk, blk + k):
+            if not (sizes[i] > 0.0 and sizes[m + i] > 0.0):
+                degenerate = True
+        r = 0.0 if degenerate else _jacobi_smin(c, sizes, t, blk)
+        rho = min(rho, r)
+    return rho
+
+
+@njit(cache=True, error_model="numpy")
+def _jacobi_smin(c, sizes, t, blk):
+    """Smallest singular value of the normalised block at rows ``blk .. blk + k - 1`` (see
+    :func:`transversality`), by one-sided Jacobi rotations of its columns in ``t`` (``k x k``)."""
+    m, k = c.shape
+    for i in range(k):
+        si = math.sqrt(sizes[blk + i])
+        for j in range(k):
+            t[i, j] = c[blk + i, j] / (si * math.sqrt(sizes[m + blk + j]))
+    eps = 2.220446049250313e-16
+    for _ in range(_JACOBI_SWEEPS):
+        rotated = False
+        for p in range(k - 1):
+            for q in range(p + 1, k):
+                alpha = 0.0
+                beta = 0.0
+                gamma = 0.0
+                for i in range(k):
+                    alpha += t[i, p] * t[i, p]
+                    beta += t[i, q] * t[i, q]
+                    gamma += t[i, p] * t[i, q]
+                if gamma == 0.0 or abs(gamma) <= eps * math.sqrt(alpha * beta):
+                    continue  # columns p and q are already orthogonal to rounding
+                rotated = True
+                zeta = (beta - alpha) / (2.0 * gamma)
+                tn = (1.0 if zeta >= 0.0 else -1.0) / (abs(zeta) + math.hypot(1.0, zeta))
+                cs = 1.0 / math.sqrt(1.0 + tn * tn)
+                sn = cs * tn
+                for i in range(k):
+                    xp = t[i, p]
+                    xq = t[i, q]
+                    t[i, p] = cs * xp - sn * xq
+                    t[i, q] = sn * xp + cs * xq
+        if not rotated:
+            break
+    smin = np.inf
+    for j in range(k):
+        acc = 0.0
+        for i in range(k):
+            acc += t[i, j] * t[i, j]
+        smin = min(smin, math.sqrt(acc))
+    return smin
 
 
 @njit(cache=True)
@@ -26,7 +192,9 @@ def solve_blocks(c: np.ndarray, b: np.ndarray, x: np.ndarray, tol: float) -> int
     block (``k = m``: a full matrix; ``k = 1``: a diagonal one).  ``c`` and ``b`` are overwritten.
     Returns ``FLAG_SINGULAR`` (and ``x = 0``) when a pivot is not larger than ``tol * max|C|``
     (relative to the matrix's own scale, so multiplying ``C`` by any nonzero number never changes
-    the verdict), when ``C`` is zero, or when an entry is not finite; else 0.
+    the verdict), when ``C`` is zero, or when an entry is not finite; else 0.  The law decides
+    whether ``C`` is singular with :func:`transversality` first and then calls this with
+    ``tol = 0`` (only an exactly zero pivot is refused): the same arithmetic, whatever the test.
     """
     m, k = c.shape
     scale = 0.0

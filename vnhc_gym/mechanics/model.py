@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vnhc_gym.mechanics._checks import check_param, check_param_rows, check_state_rows, lower_bounds
 from vnhc_gym.mechanics.cache import load_module
 from vnhc_gym.mechanics.codegen import module_key, recipe_parts
 from vnhc_gym.mechanics.kernels import FLAG_NONFINITE, FLAG_SINGULAR
@@ -39,8 +40,9 @@ FEEDBACK_MODES: dict[str, int] = {"open": 0, "continuous": 1, "sampled": 2}
 Array = NDArray[np.float64]
 
 #: Names every generated system module defines (a cache entry without one of them is rebuilt).
-KERNELS = ("rk4", "rk4_row", "law", "law_row", "work", "phi", "phi_h", "aux", "cg", "dyn", "energy", "_phi", "_aux",
-           "NAME", "N", "M", "NP", "NG", "NAUX", "HOLONOMIC", "BLOCK", "PARAM_NAMES", "PARAM_DEFAULTS", "OUTPUT_NAMES")
+KERNELS = ("rk4", "rk4_row", "law", "law_row", "work", "phi", "phi_h", "aux", "cg", "dyn", "energy", "transversal",
+           "_phi", "_aux", "_cgn", "NAME", "N", "M", "NP", "NG", "NAUX", "HOLONOMIC", "BLOCK", "PARAM_NAMES",
+           "PARAM_DEFAULTS", "PARAM_POSITIVE", "OUTPUT_NAMES")
 
 Parts = tuple["MechanicalSystem", "VelocityConstraint | HolonomicConstraint", "dict[str, sp.Expr]"]
 #: A recipe's builder: returns ``(system, constraint)`` or ``(system, constraint, outputs)``.
@@ -48,22 +50,41 @@ Builder = Callable[[], tuple[Any, ...]]
 
 
 class SingularControlError(ArithmeticError):
-    """The decoupling matrix ``C`` is singular (or ill-conditioned) where the law was asked for.
+    """The state is singular for the law: there the input fields are (nearly) tangent to the constraint.
 
-    Theorem 2 needs ``C`` invertible; where it is not, ``u*`` does not exist.  Raised by
-    :meth:`ConstrainedSystem.control` with ``on_singular="raise"`` (the default).  The
-    attribute ``rows`` holds the indices of the offending batch rows.
+    Theorem 2 needs the input fields transversal to the constraint (``C`` invertible); where the
+    transversality measure (:meth:`ConstrainedSystem.transversality`) is at most ``singular_tol``,
+    ``u*`` does not exist or is dominated by rounding.  Raised by :meth:`ConstrainedSystem.control`
+    with ``on_singular="raise"`` (the default), after the parameters and the states have been
+    checked: a bad parameter or a non-finite state raises ``ValueError`` instead.
+
+    Attributes
+    ----------
+    rows : ndarray of int
+        The offending batch rows.
+    measure : ndarray of float or None
+        The transversality measure at those rows.
     """
 
-    def __init__(self, rows: NDArray[np.intp]) -> None:
+    def __init__(self, rows: NDArray[np.intp], measure: NDArray[np.float64] | None = None,
+                 singular_tol: float | None = None) -> None:
         self.rows = rows
-        super().__init__(f"decoupling matrix C is singular or ill-conditioned at batch rows {rows.tolist()}; "
-                         "the stabilising law is undefined there (see ConstrainedSystem.singular_tol)")
+        self.measure = measure
+        shown = rows[:10].tolist()
+        more = f" and {rows.size - 10} more" if rows.size > 10 else ""
+        detail = ""
+        if measure is not None:
+            vals = ", ".join(f"{v:.3g}" for v in measure[:10])
+            tol = f" <= singular_tol = {singular_tol:g}" if singular_tol is not None else ""
+            detail = f" (transversality measure {vals}{tol})"
+        super().__init__(f"singular state at batch rows {shown}{more}: the input fields are tangent or nearly "
+                         f"tangent to the constraint{detail}, so the decoupling matrix C is singular and the "
+                         "stabilising law is undefined there (see ConstrainedSystem.transversality)")
 
 
 def _check_tol(singular_tol: float) -> float:
-    if not singular_tol > 0:
-        raise ValueError(f"singular_tol must be > 0, got {singular_tol}")
+    if not (np.isfinite(singular_tol) and singular_tol > 0):
+        raise ValueError(f"singular_tol must be a finite number > 0, got {singular_tol}")
     return float(singular_tol)
 
 
@@ -80,17 +101,23 @@ class ConstrainedSystem:
         Extra functions of the state and parameters to compile (for example the sea current
         at the boat), evaluated by :meth:`outputs`.
     singular_tol : float, default 1e-10
-        ``C`` counts as singular when a pivot of its LU factorisation (partial pivoting) is at
-        most ``singular_tol * max|C|``, when ``C`` is zero, or when an entry is not finite; when
-        ``C`` is diagonal by construction (the generated code checks this symbolically) the pivots
-        are its diagonal entries.  The test is relative to ``C``'s own scale: multiplying ``C`` by a
-        nonzero number (a mass in other units, say) never changes the verdict.
+        The law's singular test: a state is singular when its transversality measure
+        (:meth:`transversality`) is at most ``singular_tol``, or is not finite.  The measure is the
+        smallest singular value of ``C^{ba} / (|J_b| |Y^a|)``, ``C`` normalised by the sizes, in the
+        metric, of the rows ``J_b = d phi^b/d qd`` and of the input fields ``Y^a`` it is built
+        from: a number in ``[0, 1]`` that rescaling masses, units, constraint components or
+        controls never changes, and that is small where the constraint's gradient is nearly
+        orthogonal to every input.
 
     Notes
     -----
     States are ``s = (q, qd)`` of length ``2n``.  Parameters are a vector in the order of
     ``param_names``; every method takes ``params=None`` (defaults), a vector, or a
-    ``(B, n_params)`` batch.
+    ``(B, n_params)`` batch.  Every method refuses a non-finite parameter, and a parameter
+    declared positive (``param_positive``) that is not > 0, with a ``ValueError`` that names it
+    and its row; the methods that evaluate the law (:meth:`control`, :meth:`step` and
+    :func:`~vnhc_gym.mechanics.simulate` with the law in the loop) refuse a non-finite state
+    likewise.  In the open loop a non-finite state is integrated and flagged ``FLAG_NONFINITE``.
 
     The constructor keys the generated-code cache on the symbolic input itself (and on the text of
     the core files that derive and compile it), so it needs sympy.  :meth:`from_recipe` (used by
@@ -105,6 +132,7 @@ class ConstrainedSystem:
     n_gains: int
     holonomic: bool
     param_names: tuple[str, ...]
+    param_positive: tuple[bool, ...]
     default_params: Array
     output_names: tuple[str, ...]
     kernels: ModuleType
@@ -136,8 +164,10 @@ class ConstrainedSystem:
         self.n_gains = int(self.kernels.NG)
         self.holonomic = holonomic
         self.param_names = tuple(str(p) for p in system.params)
+        self.param_positive = system.param_positive
         self.default_params = np.asarray(system.default_param_values(), dtype=np.float64)
         self.output_names = tuple(self._outputs)
+        self._lower = lower_bounds(self.param_positive)
 
     @classmethod
     def from_recipe(cls, recipe: tuple[object, ...], build: Builder, *,
@@ -188,8 +218,10 @@ class ConstrainedSystem:
         self.n_gains = int(k.NG)
         self.holonomic = bool(k.HOLONOMIC)
         self.param_names = tuple(k.PARAM_NAMES)
+        self.param_positive = tuple(bool(v) for v in k.PARAM_POSITIVE)
         self.default_params = np.array(k.PARAM_DEFAULTS, dtype=np.float64)
         self.output_names = tuple(k.OUTPUT_NAMES)
+        self._lower = lower_bounds(self.param_positive)
 
     @classmethod
     def fleet(cls, unit: ConstrainedSystem, layout: FleetLayout, *, build: Builder | None = None,
@@ -215,6 +247,11 @@ class ConstrainedSystem:
             raise ValueError(f"the layout does not fit the unit {unit.name!r}: state_map needs {2 * unit.n} columns "
                              f"(got {layout.state_map.shape[1]}), own {unit.n} entries (got {layout.own.shape[0]}), "
                              f"param_map {len(unit.param_names)} columns (got {layout.param_map.shape[1]})")
+        from vnhc_gym.mechanics.fleet import fleet_positive
+
+        for name, value, positive in zip(layout.param_names, layout.param_defaults, fleet_positive(unit, layout),
+                                         strict=True):
+            check_param(name, value, positive, f"the defaults of fleet {layout.name!r}")
         self = cls.__new__(cls)
         self.singular_tol = _check_tol(singular_tol)
         self._recipe = ("fleet", layout.name, layout.replicas)
@@ -259,6 +296,9 @@ class ConstrainedSystem:
     def __setstate__(self, state: dict[str, object]) -> None:
         self.__dict__.update(state)
         self.kernels = self._load()
+        if "_lower" not in state:  # pickled before the signs were recorded: read them from the module
+            self.param_positive = tuple(bool(v) for v in self.kernels.PARAM_POSITIVE)
+            self._lower = lower_bounds(self.param_positive)
 
     # ------------------------------------------------------------------ symbolic side
     def _symbolic_parts(self) -> Parts:
@@ -309,13 +349,20 @@ class ConstrainedSystem:
         """Parameter vector with named overrides, e.g. ``params(m=3.0)``.
 
         Same checks and messages as :meth:`MechanicalSystem.default_param_values`, from the
-        compiled module's parameter names and defaults (no sympy).
+        compiled module's parameter names, defaults and signs (no sympy).
+
+        Raises
+        ------
+        ValueError
+            If a name is unknown, or a value is not finite (or not > 0 for a parameter declared
+            positive, see ``param_positive``).
         """
         values = dict(zip(self.param_names, self.default_params.tolist(), strict=True))
+        positive = dict(zip(self.param_names, self.param_positive, strict=True))
         for key, val in overrides.items():
             if key not in values:
                 raise ValueError(f"unknown parameter {key!r}; valid names: {sorted(values)}")
-            values[key] = float(val)
+            values[key] = check_param(key, val, positive[key], "params()")
         return np.array([values[k] for k in self.param_names], dtype=np.float64)
 
     # ------------------------------------------------------------------ argument checks
@@ -340,7 +387,15 @@ class ConstrainedSystem:
         return np.ascontiguousarray(v)
 
     def _params(self, params: ArrayLike | None, batch: int) -> Array:
-        return self._rows(params, batch, len(self.param_names), "params", self.default_params)
+        p = self._rows(params, batch, len(self.param_names), "params", self.default_params)
+        if params is not None:  # the defaults were checked when the model was made
+            check_param_rows(p, self.param_names, self._lower, batched=np.ndim(params) == 2)
+        return p
+
+    def _law_states(self, s: Array, single: bool) -> None:
+        """Refuse non-finite states where the law is evaluated: there ``C`` would be NaN and the state
+        reported as singular, which it is not."""
+        check_state_rows(s, self.n, not single, "the law is defined at finite states only")
 
     def _gains(self, gains: ArrayLike | None, batch: int) -> Array:
         k = self._rows(gains, batch, self.n_gains, "gains", np.ones(self.n_gains))
@@ -368,6 +423,32 @@ class ConstrainedSystem:
         out = np.empty((s.shape[0], self.m))
         self.kernels.phi_h(s, self._params(params, s.shape[0]), out)
         return self._out(out, single)
+
+    def transversality(self, state: ArrayLike, params: ArrayLike | None = None) -> Array | float:
+        """How far the input fields are from tangent to the constraint: the measure of the singular test.
+
+        With ``J_b = d phi^b/d qd`` (a covector) and the input fields ``Y^a`` (vectors),
+        ``C^{ba} = J_b Y^a``.  The measure is the smallest singular value of the normalised matrix
+        ``C^{ba} / (|J_b| |Y^a|)``, where ``|J_b|^2 = J_b M^-1 J_b^T`` and ``|Y^a|^2 = Y^a . M Y^a``
+        are sizes in the metric ``M`` (for a block-diagonal ``C``: the smallest over its blocks).
+        Each normalised entry is the cosine of the angle between the gradient of ``phi^b`` and
+        ``Y^a``, so the measure lies in ``[0, 1]``: 1 where each constraint component is steered by
+        its own input head-on, 0 where some combination of components cannot be changed by any
+        control.  Rescaling masses, units, constraint components or controls does not change it.
+
+        The law counts a state as singular where the measure is at most ``singular_tol`` (or is
+        not finite); see the docs' math page.
+
+        Returns
+        -------
+        float or ndarray, shape (B,)
+            0 where a row of ``J`` or an input field vanishes; NaN where ``C`` or a size is not
+            finite.
+        """
+        s, single = self._states(state)
+        out = np.empty(s.shape[0])
+        self.kernels.transversal(s, self._params(params, s.shape[0]), out)
+        return float(out[0]) if single else out
 
     def decoupling(self, state: ArrayLike, params: ArrayLike | None = None) -> tuple[Array, Array]:
         """``(C, G(phi))``: ``C[b, a] = d phi^b/d qd . Y^a`` and the Lie derivative along the drift."""
@@ -423,21 +504,36 @@ class ConstrainedSystem:
             ``diag K`` (``m`` values; ``2m`` values ``diag K1, diag K2`` for a holonomic
             constraint); a scalar applies to all.  Default 1.  ``gains=0`` gives ``u_hat``.
         params : array_like, optional
+            Finite; > 0 where declared positive.
         on_singular : {"raise", "flag"}
-            ``"raise"``: raise :class:`SingularControlError` if ``C`` is singular at any row.
+            ``"raise"``: raise :class:`SingularControlError` if the state is singular at any row
+            (its :meth:`transversality` is at most ``singular_tol``).
             ``"flag"``: return ``(u, singular)``, with ``u = 0`` on singular rows.
+
+        Raises
+        ------
+        ValueError
+            If a parameter is not finite (or not > 0 where declared positive) or a state is not
+            finite: the message names the row and the entry.  These are checked first, so a
+            :class:`SingularControlError` always means a singular state.
         """
         if on_singular not in ("raise", "flag"):
             raise ValueError(f"on_singular must be 'raise' or 'flag', got {on_singular!r}")
         s, single = self._states(state)
         b = s.shape[0]
+        p = self._params(params, b)
+        k = self._gains(gains, b)
+        self._law_states(s, single)
         u = np.empty((b, self.m))
         flags = np.empty(b, dtype=np.int64)
-        self.kernels.law(s, self._params(params, b), self._gains(gains, b), self.singular_tol, u, flags)
+        self.kernels.law(s, p, k, self.singular_tol, u, flags)
         singular = (flags & FLAG_SINGULAR) != 0
         if on_singular == "raise":
             if singular.any():
-                raise SingularControlError(np.flatnonzero(singular))
+                rows = np.flatnonzero(singular)
+                measure = np.empty(rows.size)
+                self.kernels.transversal(np.ascontiguousarray(s[rows]), np.ascontiguousarray(p[rows]), measure)
+                raise SingularControlError(rows, measure, self.singular_tol)
             return self._out(u, single)
         return self._out(u, single), (singular[0] if single else singular)
 
@@ -471,8 +567,16 @@ class ConstrainedSystem:
         -------
         (new_state, u_applied, flags)
             ``u_applied`` is the applied control averaged over the substeps' first stages.
-            ``flags`` per row: bit ``FLAG_SINGULAR`` if ``C`` was singular at some evaluation
-            (``u*`` then taken as 0 there), bit ``FLAG_NONFINITE`` if the state became non-finite.
+            ``flags`` per row: bit ``FLAG_SINGULAR`` if the law met a singular state at some
+            evaluation (``u*`` then taken as 0 there), bit ``FLAG_NONFINITE`` if the state became
+            non-finite.
+
+        Raises
+        ------
+        ValueError
+            If a parameter is not finite (or not > 0 where declared positive), or, with the law
+            in the loop (``continuous``, ``sampled``), a state is not finite; the message names the
+            row and the entry.  In the ``open`` mode a non-finite state is integrated and flagged.
         """
         if feedback not in FEEDBACK_MODES:
             raise ValueError(f"feedback must be one of {sorted(FEEDBACK_MODES)}, got {feedback!r}")
@@ -490,12 +594,15 @@ class ConstrainedSystem:
             hi = np.broadcast_to(np.asarray(u_bounds[1], dtype=np.float64), (self.m,)).copy()
             if np.any(lo > hi):
                 raise ValueError("u_bounds: lower bound exceeds upper bound")
+        p = self._params(params, b)
+        k = self._gains(gains, b)
+        if feedback != "open":
+            self._law_states(s, single)
         out = np.empty_like(s)
         u_out = np.empty((b, self.m))
         flags = np.empty(b, dtype=np.int64)
-        p = self._params(params, b)
-        self.kernels.rk4(s, p, p, uh, self._gains(gains, b), FEEDBACK_MODES[feedback], lo, hi, float(dt),
-                         int(substeps), self.singular_tol, out, u_out, flags)
+        self.kernels.rk4(s, p, p, uh, k, FEEDBACK_MODES[feedback], lo, hi, float(dt), int(substeps),
+                         self.singular_tol, out, u_out, flags)
         return self._out(out, single), self._out(u_out, single), (flags[0] if single else flags)
 
     def __repr__(self) -> str:

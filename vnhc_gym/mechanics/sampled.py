@@ -48,8 +48,10 @@ def sampled_control(model: ConstrainedSystem, states: ArrayLike, params: ArrayLi
     model : ConstrainedSystem
         A system with a *velocity* constraint (holonomic constraints are not supported).
     states : array_like, shape (2n,) or (B, 2n)
+        Finite.
     params : array_like or None
-        Model parameters, ``(n_params,)`` or ``(B, n_params)`` (``None``: defaults).
+        Model parameters, ``(n_params,)`` or ``(B, n_params)`` (``None``: defaults); finite, and
+        > 0 where declared positive (``model.param_positive``).
     dt : float
         Control period over which the control is held (> 0).
     gains : scalar or array_like, default 1
@@ -78,6 +80,12 @@ def sampled_control(model: ConstrainedSystem, states: ArrayLike, params: ArrayLi
         start, or no convergence within ``iters``) ``converged`` is False; ``u`` is then the
         last finite iterate (at worst ``u*``, or 0 where ``C`` is singular).
         No saturation is applied: clip ``u`` to the actuator bounds yourself.
+
+    Raises
+    ------
+    ValueError
+        If a parameter, a state or ``phi_now`` is not finite (or a parameter declared positive is
+        not > 0); the message names the row and the entry.
     """
     if model.holonomic:
         raise ValueError("sampled_control supports velocity constraints only (the model's constraint is holonomic)")
@@ -93,6 +101,7 @@ def sampled_control(model: ConstrainedSystem, states: ArrayLike, params: ArrayLi
     b, m, dim = s.shape[0], model.m, 2 * model.n
     p = model._params(params, b)
     k = model._gains(gains, b)
+    model._law_states(s, single)
     k_ = model.kernels
     tol = model.singular_tol
 
@@ -106,9 +115,12 @@ def sampled_control(model: ConstrainedSystem, states: ArrayLike, params: ArrayLi
     if phi_now is None:
         measured = phi0
     else:
-        measured = np.asarray(phi_now, dtype=np.float64)
-        measured = np.ascontiguousarray(np.broadcast_to(measured.reshape(1, -1) if measured.ndim == 1 else measured,
-                                                        (b, m)))
+        given = np.asarray(phi_now, dtype=np.float64)
+        measured = np.ascontiguousarray(np.broadcast_to(given.reshape(1, -1) if given.ndim == 1 else given, (b, m)))
+        if not np.all(np.isfinite(measured)):
+            row = int(np.argwhere(~np.isfinite(measured))[0][0])
+            where = f"phi_now row {row}" if given.ndim == 2 else "phi_now"
+            raise ValueError(f"{where} = {measured[row].tolist()}: expected finite values")
     # Residual r(u) = phi(F(x, u)) - phi(x) - (exp(-K dt) - 1) phi_now.
     offset = phi0 + np.expm1(-k * dt) * measured
 

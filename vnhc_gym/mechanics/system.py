@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 
 import sympy as sp
 
+from vnhc_gym.mechanics._checks import check_param
+
 __all__ = ["MechanicalSystem"]
 
 
@@ -59,7 +61,15 @@ class MechanicalSystem:
         Non-conservative uncontrolled force ``F_ext(q, qd)`` (``n`` entries).
     params : mapping of sympy.Symbol to float
         Physical parameters that appear in the expressions, with default values.  They stay
-        symbols in the generated code, so changing them never recompiles anything.
+        symbols in the generated code, so changing them never recompiles anything.  Every value
+        must be finite, and > 0 for a symbol declared positive (``sp.Symbol("m", positive=True)``);
+        the compiled model refuses other values by name too.
+
+    Raises
+    ------
+    ValueError
+        If the sizes disagree, the mass matrix is not symmetric, an expression uses an unknown
+        symbol, or a parameter's default value is not finite (or not > 0 where declared positive).
     """
 
     name: str
@@ -91,7 +101,11 @@ class MechanicalSystem:
         object.__setattr__(self, "potential", sp.sympify(self.potential))
         ext = sp.zeros(n, 1) if self.external_force is None else _as_column(self.external_force, n, "external_force")
         object.__setattr__(self, "external_force", ext)
-        object.__setattr__(self, "params", dict(self.params))
+        params = dict(self.params)
+        for sym, value in params.items():
+            params[sym] = check_param(str(sym), value, getattr(sym, "is_positive", None) is True,
+                                      "MechanicalSystem(params=...)")
+        object.__setattr__(self, "params", params)
         allowed = set(self.q) | set(self.qd) | set(self.params)
         for label, expr in (("mass_matrix", mass), ("control_forces", forces), ("potential", self.potential),
                             ("external_force", ext)):
@@ -148,13 +162,26 @@ class MechanicalSystem:
         return sp.simplify(mass.inv() * rhs)
 
     def default_param_values(self, overrides: Mapping[str, float] | None = None) -> list[float]:
-        """Numeric parameter vector, defaults overridden by name."""
+        """Numeric parameter vector, defaults overridden by name.
+
+        Raises
+        ------
+        ValueError
+            If a name is unknown, or an override is not finite (or not > 0 where the symbol is
+            declared positive).
+        """
         values = {str(k): float(v) for k, v in self.params.items()}
+        positive = dict(zip(values, self.param_positive, strict=True))
         for key, val in (overrides or {}).items():
             if key not in values:
                 raise ValueError(f"unknown parameter {key!r}; valid names: {sorted(values)}")
-            values[key] = float(val)
+            values[key] = check_param(key, val, positive[key], "default_param_values")
         return [values[str(k)] for k in self.params]
+
+    @property
+    def param_positive(self) -> tuple[bool, ...]:
+        """Whether each parameter (in the order of ``param_symbols``) is declared positive."""
+        return tuple(getattr(k, "is_positive", None) is True for k in self.params)
 
     def symbols(self) -> Sequence[sp.Symbol]:
         """All state symbols ``(q, qd)``."""
