@@ -1,14 +1,19 @@
-"""The learned-vs-classical comparison: every task and scenario, classical baselines and learned agents.
+"""The learned-vs-classical comparison: every registered task and scenario, the classical baselines,
+the oracle and the learned agents, scored on held-out episodes.
 
-The grid (``GRID``): 2 environments x 6 scenarios x {the k = 5 law, the tuned law, the observer
-law, the adaptive law, PPO, residual PPO, PPO with a history of 4 observations}, 5 training seeds on
-nominal and on the three scenarios where the law is weakest (noisy, mismatch, disturbance), 3 on the
-others.  It runs through ``vnhc-gym sweep``'s code path (resumable: finished runs are kept and
-skipped, so it can run over several sittings), then writes the report (rliable statistics,
-steps- and seconds-to-parity, learning curves, performance profile) to ``<out>/report``.
+The grid (``GRID``): every registered task x 6 scenarios x {the oracle (the headroom reference), the
+k = 5 law, the tuned law, the observer law, the adaptive law, PPO, residual PPO on the cell's best
+classical baseline, PPO with a history of 4 observations}; 5 training seeds on nominal and on the
+three scenarios where the law is weakest (noisy, mismatch, disturbance), 3 on the others; 2 M env
+steps per learned run.  ``--large`` is the bigger grid (10 seeds everywhere, 5 M steps).  It runs
+through ``vnhc-gym sweep``'s code path: resumable (each finished run is saved at once and skipped on
+a rerun, so the grid can run over several sittings), on a process pool or a Ray cluster; then it
+writes the report (the score's intervals, the verdict per cell, steps and seconds to parity,
+learning curves, the verdict figure, a performance profile) to ``<out>/report``.
 
-    python experiments/train_compare.py                       # the full grid, about 2 hours on 2 cores
-    python experiments/train_compare.py --quick               # a few minutes: the pipeline end to end
+    python experiments/train_compare.py                       # the default grid, about 3 hours on 2 cores
+    python experiments/train_compare.py --quick               # a few minutes: every task, the pipeline end to end
+    python experiments/train_compare.py --large --out results/large   # more seeds, longer budgets
     python experiments/train_compare.py --executor ray --address <head>:6379   # on a cluster
     python experiments/train_compare.py --publish docs/results/train_compare   # copy the report there
 """
@@ -19,19 +24,24 @@ import argparse
 import shutil
 from pathlib import Path
 
-from vnhc_gym.sweep import CLASSICAL_ALGOS, LEARNED_ALGOS, grid, report, run_sweep
+from vnhc_gym.sweep import CLASSICAL_ALGOS, LEARNED_ALGOS, REFERENCE_ALGOS, grid, report, run_sweep
+from vnhc_gym.tasks import TASKS
 
 SCENARIOS = ["nominal", "saturated", "mismatch", "noisy", "coarse", "disturbance"]
 #: Five seeds where the law is weakest and on nominal, three elsewhere.
 SEEDS = {"nominal": range(5), "noisy": range(5), "mismatch": range(5), "disturbance": range(5),
          "saturated": range(3), "coarse": range(3)}
-GRID = {"envs": ["flocking", "usv"], "scenarios": SCENARIOS, "algos": [*CLASSICAL_ALGOS, *LEARNED_ALGOS],
-        "n_timesteps": 2_000_000}
+ALGOS = [*REFERENCE_ALGOS, *CLASSICAL_ALGOS, *LEARNED_ALGOS]
+GRID = {"scenarios": SCENARIOS, "algos": ALGOS, "n_timesteps": 2_000_000}
+LARGE = {"seeds": range(10), "n_timesteps": 5_000_000}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="tiny budgets, one scenario, one seed (CI)")
+    ap.add_argument("--quick", action="store_true", help="tiny budgets, one scenario, one seed, every task (CI)")
+    ap.add_argument("--large", action="store_true", help="10 seeds in every cell and 5 M steps per learned run")
+    ap.add_argument("--algos", nargs="+", choices=ALGOS, help="run only these algorithms of the grid (the same runs, "
+                    "so a later full run skips them); the report covers every finished run")
     ap.add_argument("--out", default="results/train_compare")
     ap.add_argument("--executor", choices=["local", "ray"], default="local")
     ap.add_argument("--address", default=None)
@@ -42,14 +52,20 @@ def main() -> None:
                     help="copy the median-seed nominal agent of each task and algorithm into vnhc_gym/agents_zoo and "
                          "the classical settings chosen per cell into vnhc_gym/baselines/settings.json")
     args = ap.parse_args()
+    tasks = list(TASKS)
     if args.quick:
-        specs = grid(["flocking", "usv"], ["nominal"], ["law", "tuned_law", "ppo", "residual_ppo"], [0], 2048,
+        specs = grid(tasks, ["nominal"], ["oracle", "law", "tuned_law", "observer", "ppo", "residual_ppo"], [0], 2048,
                      test_episodes=4, eval_episodes=4)
         jobs = 1
+    elif args.large:
+        specs = grid(tasks, GRID["scenarios"], GRID["algos"], list(LARGE["seeds"]), LARGE["n_timesteps"])
+        jobs = args.jobs
     else:
-        specs = grid(GRID["envs"], GRID["scenarios"], GRID["algos"], [0], GRID["n_timesteps"],
+        specs = grid(tasks, GRID["scenarios"], GRID["algos"], [0], GRID["n_timesteps"],
                      seeds_by_scenario={k: list(v) for k, v in SEEDS.items()})
         jobs = args.jobs
+    if args.algos:
+        specs = [s for s in specs if s.algo in args.algos]
     run_sweep(specs, args.out, executor=args.executor, jobs=jobs, threads=1, address=args.address)
     report(args.out)
     if args.publish:
@@ -72,7 +88,8 @@ def main() -> None:
 
 
 def ship(out: Path) -> None:
-    """The agents and settings the package ships, from a finished comparison."""
+    """The settings the package ships (the classical baselines' and the oracle's, per cell) and its
+    agents (the median-seed nominal agent of each task and algorithm whose nominal cell is finished)."""
     import json
 
     import numpy as np
@@ -84,16 +101,18 @@ def ship(out: Path) -> None:
     settings: dict[str, dict[str, dict[str, dict]]] = {}
     for r in runs:
         spec = r["spec"]
-        if spec["algo"] in CLASSICAL_ALGOS:
+        if spec["algo"] in CLASSICAL_ALGOS + REFERENCE_ALGOS:
             settings.setdefault(spec["env"], {}).setdefault(spec["scenario"], {})[spec["algo"]] = r["settings"]
     (root / "baselines" / "settings.json").write_text(json.dumps(settings, indent=1, sort_keys=True) + "\n")
-    for task in GRID["envs"]:
+    for task in TASKS:
         for algo in LEARNED_ALGOS:
             rs = [r for r in runs if r["spec"]["env"] == task and r["spec"]["scenario"] == "nominal"
                   and r["spec"]["algo"] == algo]
-            if not rs:
+            if len(rs) < len(SEEDS["nominal"]):  # only from a finished cell
+                print(f"not shipping {task}-{algo}: {len(rs)} of {len(SEEDS['nominal'])} nominal runs finished")
                 continue
-            scores = [float(np.median(r["test"]["metrics"]["mean_abs_phi_sf"])) for r in rs]
+            # The median seed by the test score (each agent runs in the benchmark only on its own cell).
+            scores = [float(np.mean(r["test"]["metrics"]["score"])) for r in rs]
             median = rs[int(np.argsort(scores)[len(scores) // 2])]
             stem = f"{task}-{algo}"
             shutil.copy(out / "runs" / f"{median['name']}.zip", root / "agents_zoo" / f"{stem}.zip")

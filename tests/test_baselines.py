@@ -405,7 +405,8 @@ class _SeedLog:
         self.calls.append((seed, n_episodes))
         if self.fake:
             point = float(len(self.calls))
-            return SimpleNamespace(summary=lambda reps=2000: {SELECTION_METRIC: SimpleNamespace(point=point)})
+            return SimpleNamespace(metrics={SELECTION_METRIC: np.full(n_episodes, point),
+                                            "success": np.ones(n_episodes)}, policy="fake")
         return self.real(policy, env, scenario, n_episodes=n_episodes, seed=seed, **{**kwargs, "max_time": 1.0})
 
 
@@ -425,12 +426,12 @@ def test_tuning_reads_only_validation_seeds_and_keeps_the_best(name: str, monkey
     for seed, n in log.calls:
         assert VALIDATION_SEED <= seed and seed + n - 1 < TEST_SEED
         assert n == 3
-    # Every setting of the grid is scored once, and the best is the lowest score.
+    # Every setting of the grid is scored once, and the best is the highest score (the first at a tie).
     keys = sorted(grid)
     assert [tuple(row[k] for k in keys) for row in table] == list(itertools.product(*(grid[k] for k in keys)))
     scores = [row["score"] for row in table]
-    assert all(np.isfinite(scores))
-    assert best == {k: table[int(np.argmin(scores))][k] for k in keys}
+    assert all(0 <= x <= 1 for x in scores)
+    assert best == {k: table[int(np.argmax(scores))][k] for k in keys}
 
 
 def test_tuning_cannot_be_pointed_at_test_seeds(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -25,21 +25,30 @@ def _run(script: str, out: Path, timeout: int = 900) -> subprocess.CompletedProc
 
 @pytest.mark.slow
 def test_train_compare_quick_writes_every_table_and_figure(tmp_path: Path) -> None:
+    """The quick grid covers every registered task, and writes every table and figure of the report."""
     pytest.importorskip("stable_baselines3")
+    from vnhc_gym.tasks import TASKS
+
     out = tmp_path / "compare"
     proc = _run("train_compare.py", out)
     report = out / "report"
-    envs = ("flocking", "usv")  # the script's quick grid
-    for name in ("comparison.md", "comparison.csv", "comparison.json", "performance_profile.png",
-                 *(f"learning_curves_{env}.png" for env in envs)):
+    envs = tuple(TASKS)
+    for name in ("comparison.md", "comparison.csv", "comparison.json", "headline.md", "verdicts.json", "verdict.png",
+                 "performance_profile.png", *(f"learning_curves_{env}.png" for env in envs)):
         assert (report / name).is_file() and (report / name).stat().st_size > 0, name
     rows = json.loads((report / "comparison.json").read_text())
-    algos = ("law", "tuned_law", "ppo", "residual_ppo")
+    algos = ("oracle", "law", "tuned_law", "observer", "ppo", "residual_ppo")
     assert {(r["env"], r["algo"]) for r in rows} == {(e, a) for e in envs for a in algos}
+    assert all(0.0 <= r["low"] <= r["score"] <= r["high"] <= 1.0 and 0.0 <= r["success"] <= 1.0 for r in rows)
     with open(report / "comparison.csv") as fh:
         assert len(list(csv.DictReader(fh))) == len(rows)
+    headline = (report / "headline.md").read_text()
+    assert all(f"| {env} | nominal |" in headline for env in envs)
+    verdicts = json.loads((report / "verdicts.json").read_text())
+    assert {v["env"] for v in verdicts} == set(envs) and all(v["verdict"] for v in verdicts)
     sidecars = list((out / "runs").glob("*.json"))
     assert len(sidecars) == len(envs) * len(algos) and not list((out / "runs").glob("*.error"))
+    assert len(list((out / "runs").glob("*-final.zip"))) == len(envs) * 2  # every learned run keeps its final model
     assert "report:" in proc.stdout
 
 

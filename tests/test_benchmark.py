@@ -74,6 +74,9 @@ def test_quick_benchmark_numbers_are_the_protocols(quick: Any, env: str) -> None
             row = rows[(env, scenario, name)]
             for metric in ("mean_abs_phi", "mean_abs_phi_sf", "return"):
                 assert float(row[metric]) == pytest.approx(sps.trim_mean(res.metrics[metric], 0.25), rel=1e-9)
+            # The score and the success rate: plain means over the episodes.
+            for metric in ("score", "success"):
+                assert float(row[metric]) == pytest.approx(float(np.mean(res.metrics[metric])), rel=1e-9)
     # The in-loop reference does not see the observation noise; the law does.
     assert rows[(env, "noisy", "inloop")]["mean_abs_phi"] == rows[(env, "nominal", "inloop")]["mean_abs_phi"]
     assert rows[(env, "noisy", "law")]["mean_abs_phi"] != rows[(env, "nominal", "law")]["mean_abs_phi"]
@@ -82,7 +85,7 @@ def test_quick_benchmark_numbers_are_the_protocols(quick: Any, env: str) -> None
 def test_policies() -> None:
     assert [p.name for p in benchmark.policies(quick=True, agents=False)] == QUICK_POLICIES
     full = [p.name for p in benchmark.policies(quick=False, agents=False)]
-    assert full == ["zero", "random", "law", "law-sampled", "tuned_law", "observer", "adaptive", "inloop"]
+    assert full == ["zero", "random", "law", "law-sampled", "tuned_law", "observer", "adaptive", "inloop", "oracle"]
     assert [p.feedback for p in benchmark.policies(quick=True, agents=False)] == [None, None, None, "continuous"]
     assert isinstance(benchmark.settings(), dict)
 
@@ -103,7 +106,8 @@ def test_run_benchmark_and_outputs_in_process(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_agents_of_a_zoo_run_on_their_own_task_only(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Shipped agents are ``<task>-<algo>`` files; an agent runs on its task's cells only, without a warning."""
+    """Shipped agents are ``<task>-<algo>`` files; an agent runs only in the cell it was trained in (its task
+    and scenario), under the name ``<algo>@<scenario>``, without a warning."""
     pytest.importorskip("stable_baselines3")
     import warnings
 
@@ -115,11 +119,13 @@ def test_agents_of_a_zoo_run_on_their_own_task_only(tmp_path: Path, monkeypatch:
                                                                           "batch_size": 128},
                       out=str(zoo), eval_points=1, eval_episodes=1, test_episodes=1, threads=1, name=f"{task}-ppo"))
     monkeypatch.setattr(agents, "ZOO_DIR", zoo)
-    specs = [p for p in benchmark.policies(quick=True, agents=True) if p.name in ("law", "ppo")]
-    assert [p.name for p in specs] == ["law", "ppo"]
+    specs = [p for p in benchmark.policies(quick=True, agents=True) if p.name in ("law", "ppo@nominal")]
+    assert [p.name for p in specs] == ["law", "ppo@nominal"]
     with warnings.catch_warnings():
         warnings.simplefilter("error", agents.UntrustedFileWarning)
-        results = benchmark.run_benchmark(list(TASKS)[:2], ["nominal"], specs, episodes=2, seed=TEST_SEED,
+        results = benchmark.run_benchmark(list(TASKS)[:2], ["nominal", "noisy"], specs, episodes=2, seed=TEST_SEED,
                                           max_time=1.0, log=lambda s: None)
-    assert [(r.env_id, r.policy) for r in results] == [(env_id(task), "law"), (env_id(task), "ppo"),
-                                                       (env_id(list(TASKS)[1]), "law")]
+    other = env_id(list(TASKS)[1])
+    assert [(r.env_id, r.scenario, r.policy) for r in results] == [
+        (env_id(task), "nominal", "law"), (env_id(task), "nominal", "ppo@nominal"), (env_id(task), "noisy", "law"),
+        (other, "nominal", "law"), (other, "noisy", "law")]

@@ -100,7 +100,8 @@ def test_train_default_path_in_a_subprocess(tmp_path: Path) -> None:
     assert side["n_envs"] == 8 and side["hyperparams"]["n_steps"] == 64 and side["hyperparams"]["batch_size"] == 128
     assert side["test"]["seed"] == TEST_SEED and side["test"]["n_episodes"] == 3
     assert summary["test_mean_abs_phi_sf_iqm"] == side["test"]["summary"]["mean_abs_phi_sf"]
-    assert "validation IQM" in proc.stdout
+    assert summary["test_score"] == side["test"]["summary"]["score"]
+    assert "validation score" in proc.stdout
 
 
 @pytest.mark.slow

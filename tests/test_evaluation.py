@@ -107,6 +107,7 @@ def _hand_metrics(env: str, policy_factory: Any, seed: int, steps: int, scenario
     e.close()
     phi, phi_sf = np.array(phi), np.array(phi_sf)
     t = len(phi) - 1
+    missing = steps - t  # steps of the horizon after an early end
     below = [i for i in range(1, t + 1) if phi[i] <= 0.01 * phi[0]]
     below_sf = [i for i in range(1, t + 1) if phi_sf[i] <= 0.01 * phi_sf[0]]
     half = t // 2
@@ -115,7 +116,8 @@ def _hand_metrics(env: str, policy_factory: Any, seed: int, steps: int, scenario
             "terminated": float(terminated), "mean_abs_phi_sf": float(np.mean(phi_sf[1:])),
             "late_abs_phi_sf": float(np.mean(phi_sf[half + 1:])),
             "time_to_1pct_sf": below_sf[0] * dt if below_sf else steps * dt, "reached_1pct": float(bool(below)),
-            "length": float(t)}
+            "length": float(t), "score": ret / steps, "success": float(not terminated),
+            "horizon_abs_phi_sf": (float(np.sum(phi_sf[1:])) + missing * max(1.0, float(phi_sf[-1]))) / steps}
 
 
 @pytest.mark.parametrize("scenario", ["nominal", "coarse"])
@@ -214,13 +216,15 @@ def test_recurrent_state_and_episode_start_are_passed() -> None:
 
 
 # --------------------------------------------------------------------------- results
-def test_summary_is_the_iqm_with_an_interval() -> None:
+def test_summary_is_the_mean_of_the_score_and_the_iqm_of_the_diagnostics() -> None:
     res = evaluate(GeometricController, USV, "noisy", n_episodes=8, seed=TEST_SEED, max_time=2.0)
     summary = res.summary(reps=500)
     assert set(summary) == set(METRICS)
+    means = {"score", "success", "terminated", "horizon_abs_phi_sf"}
     for name, iv in summary.items():
         values = res.metrics[name]
-        assert iv.point == pytest.approx(sps.trim_mean(values, 0.25), rel=1e-12, abs=1e-15), name
+        expected = float(np.mean(values)) if name in means else sps.trim_mean(values, 0.25)
+        assert iv.point == pytest.approx(expected, rel=1e-12, abs=1e-15), name
         assert iv.low <= iv.point + 1e-12 and iv.point <= iv.high + 1e-12
 
 

@@ -92,10 +92,12 @@ def test_a_run_writes_the_model_and_its_sidecar(runs: dict, case: tuple[str, str
     curve = side["curve"]
     steps = [p["steps"] for p in curve]
     assert steps[0] == 0 and steps == sorted(steps) and steps[-1] >= 2000
-    assert all(np.isfinite(p["mean_abs_phi_sf"]) and p["wall"] >= 0 for p in curve)
+    assert all(np.isfinite(p["mean_abs_phi_sf"]) and 0 <= p["score"] <= 1 and p["wall"] >= 0 for p in curve)
     assert side["best_steps"] in steps
-    assert min(p["mean_abs_phi_sf"] for p in curve) == next(p["mean_abs_phi_sf"] for p in curve
-                                                             if p["steps"] == side["best_steps"])
+    # The kept checkpoint is the first with the highest validation score; the final model is kept too.
+    best = max(p["score"] for p in curve)
+    assert side["best_steps"] == next(p["steps"] for p in curve if p["score"] == best)
+    assert path.with_name(path.stem + "-final.zip").is_file()
     # The test summary: held-out seeds, every metric, IQM with its interval.
     test = side["test"]
     assert test["seed"] == TEST_SEED and test["n_episodes"] == 3

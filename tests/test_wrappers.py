@@ -195,6 +195,7 @@ def _drive_vector(env: str, n: int, mode: AutoresetMode, base_name: str, steps: 
         b, _ = base.predict(obs, episode_start=starts)
         r = np.asarray(residual(t, obs)).astype(np.float32).astype(np.float64)  # what an agent's float32 action is
         a = np.clip(b.astype(np.float64) + 0.2 * np.clip(r, -1, 1), -1, 1).astype(np.float32)
+        base.applied(a)  # a stateful base predicts with what the environment received
         obs, _, term, trunc, info = venv.step(a)
         done = term | trunc
         if mode is AutoresetMode.SAME_STEP:

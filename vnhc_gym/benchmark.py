@@ -15,14 +15,20 @@ Policies
 ``inloop``
     A reference, not an observation-based policy: the law runs inside the integrator at every RK4
     stage on the true state with the nominal parameters (the theorem's continuous-time setting).
+``oracle``
+    The headroom reference (not an observation-based policy either): the sampled-data law on the
+    environment's true state and parameters, its gain chosen per cell on validation episodes
+    (:class:`~vnhc_gym.baselines.OracleController`).
 shipped agents
-    ``<task>-<algo>`` from ``vnhc_gym/agents_zoo`` (trained on the nominal scenario), on every
-    scenario.
+    ``<algo>@<scenario>`` from ``vnhc_gym/agents_zoo``: each agent runs only in the cell it was trained
+    in (its task and scenario), so a row never shows an agent outside the conditions it learned.
 
-Every policy runs ``--episodes`` held-out episodes (seeds 10 000 + i) of 20 s per cell; the metrics
-of :mod:`vnhc_gym.evaluation` are aggregated as IQM with a 95 % bootstrap interval.  Outputs in
-``--out`` (default ``results/benchmark``): ``benchmark.md`` (tables), ``benchmark.csv``,
-``benchmark.json`` and ``phi_<task>.png`` (the median ``|phi~|(t)`` per policy, nominal scenario).
+Every policy runs ``--episodes`` held-out episodes (seeds 10 000 + i) of 20 s per cell.  The first
+table is the ``score`` (the return over the fixed horizon per step, in [0, 1]: a failed episode's
+remaining steps count 0; its mean with a 95 % bootstrap interval) and the success rate; the others
+are diagnostics (IQMs of the completed steps' ``|phi~|``).  Outputs in ``--out`` (default
+``results/benchmark``): ``benchmark.md`` (tables), ``benchmark.csv``, ``benchmark.json`` and
+``phi_<task>.png`` (the median ``|phi~|(t)`` per policy, nominal scenario).
 """
 
 from __future__ import annotations
@@ -77,24 +83,30 @@ def policies(quick: bool = False, agents: bool = True) -> list[PolicySpec]:
                   PolicySpec("tuned_law", classical("tuned_law")), PolicySpec("observer", classical("observer")),
                   PolicySpec("adaptive", classical("adaptive"))]
     specs.append(PolicySpec("inloop", lambda env, t, s: ZeroPolicy(env), feedback="continuous"))
+    if not quick:
+        specs.append(PolicySpec("oracle", classical("oracle")))
     if agents:
         specs += _agents()
     return specs
 
 
 def _agents() -> list[PolicySpec]:
-    from vnhc_gym.training.agents import list_zoo
+    """One spec per shipped agent, which applies only to the cell it was trained in."""
+    from vnhc_gym.training.agents import ZOO_DIR, list_zoo, sidecar_of
 
     out = []
     for name in list_zoo():
-        task, _, algo = name.partition("-")
+        side = sidecar_of(ZOO_DIR / f"{name}.zip")
+        task = name.partition("-")[0]
+        algo = str(side.get("sweep_algo") or side.get("algo") or name.rpartition("-")[2])
+        trained_on = str(side.get("scenario", "nominal"))
 
-        def make(env: Any, t: str, s: str, name: str = name, task: str = task) -> Any:
+        def make(env: Any, t: str, s: str, name: str = name, task: str = task, trained_on: str = trained_on) -> Any:
             from vnhc_gym.training import load_agent
 
-            return load_agent(name, env=env) if t == task else None
+            return load_agent(name, env=env) if (t, s) == (task, trained_on) else None
 
-        out.append(PolicySpec(algo, make))
+        out.append(PolicySpec(f"{algo}@{trained_on}", make))
     return out
 
 
@@ -131,9 +143,11 @@ def _probe(factory: Callable[[Any], Any], env: str, scenario: str) -> Any:
 
 
 def _table(results: list[Any], metric: str, names: list[str]) -> str:
+    from vnhc_gym.evaluation import AGGREGATE
+
     lines = []
     for task in sorted({r.env_id for r in results}):
-        lines += [f"**{task}**: {metric}, IQM [95% CI]", "",
+        lines += [f"**{task}**: {metric}, {AGGREGATE.get(metric, 'iqm').upper()} [95% CI]", "",
                   "| scenario | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
         for scenario in dict.fromkeys(r.scenario for r in results if r.env_id == task):
             cells = []
@@ -152,8 +166,9 @@ def write_outputs(results: list[Any], out: Path, settings_used: dict[str, Any]) 
     out.mkdir(parents=True, exist_ok=True)
     names = list(dict.fromkeys(r.policy for r in results))
     md = ["# Benchmark", "", f"Command: `{settings_used['command']}`", "",
+          _table(results, "score", names), _table(results, "success", names),
           _table(results, "mean_abs_phi_sf", names), _table(results, "late_abs_phi_sf", names),
-          _table(results, "mean_abs_phi", names), _table(results, "terminated", names)]
+          _table(results, "mean_abs_phi", names)]
     (out / "benchmark.md").write_text("\n".join(md))
     rows = []
     for r in results:

@@ -1,11 +1,16 @@
 """A grid of training-and-evaluation runs, on one machine or a Ray cluster, resumable, and its report.
 
 A run is one :class:`RunSpec`: a learned agent (``ppo``, ``residual_ppo``, ``ppo_history``) trained
-and tested, or a classical baseline (``law``, ``tuned_law``, ``observer``, ``adaptive``) tuned on
-validation episodes and tested.  Its outputs go to ``<out>/runs/<stem>.*`` under a stable name
-derived from its configuration, with the sidecar (``<stem>.json``) written last: a run with a
-sidecar is finished.  Rerunning the same grid skips finished runs, reruns failed or partial ones,
-and :func:`report` warns when finished runs come from different code versions.
+and tested, a classical baseline (``law``, ``tuned_law``, ``observer``, ``adaptive``) tuned on
+validation episodes and tested, or the headroom reference ``oracle`` (the law in the loop on the true
+state and parameters), tuned and tested the same way.  Every choice (settings, checkpoints, the best
+classical baseline of a cell) and every table ranks on the ``score`` (the return over the fixed
+horizon per step, failed episodes' remaining steps counting 0), higher is better.
+
+A run's outputs go to ``<out>/runs/<stem>.*`` under a stable name derived from its configuration,
+with the sidecar (``<stem>.json``) written last: a run with a sidecar is finished.  Rerunning the
+same grid skips finished runs, reruns failed or partial ones, and :func:`report` warns when finished
+runs come from different code versions.
 
 Executors: ``local`` (an in-process loop, or ``jobs`` worker processes) and ``ray`` (one Ray task
 per run with its CPUs declared, retried ``retries`` times, then recorded as failed with its
@@ -17,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import time
 import traceback
@@ -27,13 +33,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-__all__ = ["CLASSICAL_ALGOS", "LEARNED_ALGOS", "RunSpec", "grid", "load_runs", "report", "run_one", "run_sweep",
-           "status"]
+__all__ = ["CLASSICAL_ALGOS", "LEARNED_ALGOS", "REFERENCE_ALGOS", "RunSpec", "grid", "load_runs", "report",
+           "run_one", "run_sweep", "status"]
 
-#: Learned agents (trained with vnhc_gym.training) and classical baselines (vnhc_gym.baselines.tuning).
+#: Learned agents (trained with vnhc_gym.training), classical baselines (vnhc_gym.baselines.tuning)
+#: and the headroom reference (not a controller one could field: never a cell's best classical).
 LEARNED_ALGOS = ("ppo", "residual_ppo", "ppo_history")
 CLASSICAL_ALGOS = ("law", "tuned_law", "observer", "adaptive")
+REFERENCE_ALGOS = ("oracle",)
+ALL_ALGOS = LEARNED_ALGOS + CLASSICAL_ALGOS + REFERENCE_ALGOS
+#: The metric of every choice and table (its mean over episodes), higher is better.
+SCORE = "score"
 
 
 
@@ -51,8 +63,8 @@ class RunSpec:
     eval_episodes: int = 10
 
     def __post_init__(self) -> None:
-        if self.algo not in LEARNED_ALGOS + CLASSICAL_ALGOS:
-            raise ValueError(f"algo must be one of {list(LEARNED_ALGOS + CLASSICAL_ALGOS)}, got {self.algo!r}")
+        if self.algo not in ALL_ALGOS:
+            raise ValueError(f"algo must be one of {list(ALL_ALGOS)}, got {self.algo!r}")
 
     @property
     def learned(self) -> bool:
@@ -129,15 +141,14 @@ def run_one(spec: RunSpec, out: str | Path, threads: int = 1) -> dict[str, Any]:
         meta = train(cfg)
         meta["sweep_algo"] = spec.algo
     else:
-        from vnhc_gym.baselines.tuning import make_classical, tune
-        from vnhc_gym.evaluation import TEST_SEED, evaluate
+        from vnhc_gym.baselines.tuning import evaluate_classical, tune
+        from vnhc_gym.evaluation import TEST_SEED
 
         best, table = tune(spec.algo, env_id, spec.scenario, n_episodes=spec.eval_episodes)
-        test = evaluate(lambda env: make_classical(spec.algo, env, **best), env_id, spec.scenario,
-                        n_episodes=spec.test_episodes, seed=TEST_SEED)
+        test = evaluate_classical(spec.algo, best, env_id, spec.scenario, spec.test_episodes, TEST_SEED)
         meta = {"name": spec.stem, "algo": spec.algo, "sweep_algo": spec.algo, "env_id": env_id,
                 "scenario": spec.scenario, "settings": best, "tuning": table,
-                "validation_score": min(row["score"] for row in table),
+                "validation_score": max(row["score"] for row in table),
                 "test": {k: v for k, v in test.to_dict().items() if k in ("metrics", "summary", "seed", "n_episodes")},
                 "version": vnhc_gym.__version__, "code": code_fingerprint()}
     meta["spec"] = asdict(spec)
@@ -147,7 +158,7 @@ def run_one(spec: RunSpec, out: str | Path, threads: int = 1) -> dict[str, Any]:
 
 
 def _best_classical(spec: RunSpec, out: str | Path, env_id: str) -> tuple[str, dict[str, Any]]:
-    """The best classical baseline of the run's cell (lowest validation score) and its settings: the
+    """The best classical baseline of the run's cell (highest validation score) and its settings: the
     base of residual PPO, which then starts from the strongest model-based controller of the cell.
     Read from the cell's finished classical runs when they are all there, else tuned here (on
     validation episodes, as they would be)."""
@@ -156,15 +167,15 @@ def _best_classical(spec: RunSpec, out: str | Path, env_id: str) -> tuple[str, d
     found = [Path(out) / "runs" / f"{c.stem}.json" for c in cell]
     if all(f.exists() for f in found):
         runs = [json.loads(f.read_text()) for f in found]
-        best = min(runs, key=lambda r: r["validation_score"])
+        best = max(runs, key=lambda r: r["validation_score"])
         return str(best["algo"]), dict(best["settings"])
     from vnhc_gym.baselines.tuning import tune
 
     scored = []
     for c in cell:
         settings, table = tune(c.algo, env_id, spec.scenario, n_episodes=spec.eval_episodes)
-        scored.append((min(row["score"] for row in table), c.algo, settings))
-    _, name, settings = min(scored, key=lambda t: t[0])
+        scored.append((max(row["score"] for row in table), c.algo, settings))
+    _, name, settings = max(scored, key=lambda t: t[0])
     return name, settings
 
 
@@ -284,16 +295,40 @@ class Cell:
     runs: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
 
 
-def report(out: str | Path, metric: str = "mean_abs_phi_sf", reps: int = 2000, log: Callable[[str], None] = print
-           ) -> dict[str, Any]:
+def _episodes(rs: list[dict[str, Any]], metric: str) -> NDArray[np.float64]:
+    """The test episodes' values of ``metric``, pooled over a cell's runs of one algorithm."""
+    return np.concatenate([np.asarray(r["test"]["metrics"][metric], dtype=np.float64) for r in rs])
+
+
+def _parity(r: dict[str, Any], target: float, residual: bool) -> tuple[float | None, float | None]:
+    """Env steps and training seconds from the agent's own start until its validation score reaches
+    ``target`` (a residual agent, which starts at its base: until the lower end of its score's
+    interval is above its base's validation score, i.e. it beats its base), or ``None``."""
+    curve = [p for p in r.get("curve", []) if p["steps"] > 0 and "score" in p]
+    if residual:
+        start = next((p for p in r.get("curve", []) if p["steps"] == 0 and "score" in p), None)
+        if start is None:
+            return None, None
+        hit = next((p for p in curve if p["score_low"] > start["score"]), None)
+    else:
+        hit = next((p for p in curve if p["score"] >= target), None)
+    return (None, None) if hit is None else (float(hit["steps"]), float(hit["wall"]))
+
+
+def report(out: str | Path, reps: int = 2000, log: Callable[[str], None] = print) -> dict[str, Any]:
     """Tables and figures from the run outputs alone (wherever they ran), in ``out/report``.
 
-    Per cell (environment, scenario): the IQM of ``metric`` over test episodes (pooled over seeds
-    for learned agents) with a 95 % stratified-bootstrap interval; the best classical baseline (the
-    lowest validation score); each learned agent's probability of improvement over it, with its
-    interval; the env steps and training seconds at which the agent's validation IQM first reached
-    the best classical baseline's validation score (or "not reached"); learning curves; and a
-    performance profile of every run's score relative to the k = 5 law.
+    Per cell (environment, scenario) and algorithm: the mean ``score`` over the test episodes
+    (pooled over training seeds for learned agents) with its 95 % stratified-bootstrap interval, the
+    success rate (episodes that reached the time limit), and the diagnostics (the IQM of the
+    completed steps' ``mean |phi~|``, the termination-aware mean ``|phi~|``).  The cell's best
+    classical baseline is the one with the highest *validation* score (chosen without the test
+    episodes); the oracle is the headroom reference.  For each learned agent: the probability that
+    one of its episodes scores above one of the best classical baseline's, with its interval, and
+    the median env steps and seconds to parity (:func:`_parity`) over its runs, or "not reached".
+    Files: ``comparison.{json,csv,md}`` (every row), ``headline.md`` (one line a cell: the oracle,
+    the best classical, the best learned and the verdict), ``verdict.png`` (the same at a glance),
+    ``learning_curves_<env>.png`` and ``performance_profile.png``.
     """
     from vnhc_gym import stats
 
@@ -306,114 +341,236 @@ def report(out: str | Path, metric: str = "mean_abs_phi_sf", reps: int = 2000, l
     cells: dict[tuple[str, str], Cell] = {}
     for r in runs:
         spec = r["spec"]
+        if "score" not in r["test"]["metrics"]:
+            log(f"report: {r['name']} has no score (an older format): skipped")
+            continue
         cell = cells.setdefault((spec["env"], spec["scenario"]), Cell(spec["env"], spec["scenario"]))
         cell.runs.setdefault(spec["algo"], []).append(r)
     rows: list[dict[str, Any]] = []
     for (env, scenario), cell in sorted(cells.items()):
         classical = {a: rs[0] for a, rs in cell.runs.items() if a in CLASSICAL_ALGOS}
-        best_name = min(classical, key=lambda a: classical[a]["validation_score"]) if classical else None
-        best_scores = (np.asarray(classical[best_name]["test"]["metrics"][metric]) if best_name else None)
+        best_name = max(classical, key=lambda a: classical[a]["validation_score"]) if classical else None
+        best_scores = _episodes([classical[best_name]], SCORE) if best_name else None
         for algo, rs in sorted(cell.runs.items()):
-            values = np.concatenate([np.asarray(r["test"]["metrics"][metric]) for r in rs])
-            iv = stats.interval_estimates({"x": values[:, None]}, reps=reps)["x"]
-            row: dict[str, Any] = {"env": env, "scenario": scenario, "algo": algo, "runs": len(rs),
-                                   "iqm": iv.point, "low": iv.low, "high": iv.high,
-                                   "terminated": float(np.mean(np.concatenate(
-                                       [np.asarray(r["test"]["metrics"]["terminated"]) for r in rs]))),
-                                   "best_classical": best_name}
+            values = _episodes(rs, SCORE)
+            iv = stats.interval_estimates({"x": values[:, None]}, metric="mean", reps=reps)["x"]
+            row: dict[str, Any] = {
+                "env": env, "scenario": scenario, "algo": algo, "runs": len(rs), "episodes": int(values.size),
+                "score": iv.point, "low": iv.low, "high": iv.high,
+                "success": float(np.mean(_episodes(rs, "success"))),
+                "iqm_abs_phi_sf": stats.iqm(_episodes(rs, "mean_abs_phi_sf")),
+                "horizon_abs_phi_sf": float(np.mean(_episodes(rs, "horizon_abs_phi_sf"))),
+                "kind": "learned" if algo in LEARNED_ALGOS else "reference" if algo in REFERENCE_ALGOS else "classical",
+                "best_classical": best_name,
+                "settings": rs[0].get("settings"),
+            }
             if algo in LEARNED_ALGOS and best_scores is not None:
                 poi = stats.probability_of_improvement_interval(values[:, None], best_scores[:, None],
-                                                                lower_is_better=True, reps=reps)
+                                                                lower_is_better=False, reps=reps)
                 row.update({"poi": poi.point, "poi_low": poi.low, "poi_high": poi.high})
-                target = classical[best_name]["validation_score"]  # type: ignore[index]
-                reach_steps, reach_wall = [], []
-                for r in rs:
-                    curve = r.get("curve", [])
-                    steps = [p["steps"] for p in curve]
-                    walls = [p["wall"] for p in curve]
-                    vals = [p[metric] for p in curve]
-                    reach_steps.append(stats.steps_to_parity(steps, vals, target) if curve else None)
-                    reach_wall.append(stats.time_to_parity(walls, vals, target) if curve else None)
-                hit = [s for s in reach_steps if s is not None]
-                row["parity_steps"] = float(np.median(hit)) if len(hit) == len(rs) else None
+                target = float(classical[best_name]["validation_score"])  # type: ignore[index]
+                reached = [_parity(r, target, algo == "residual_ppo") for r in rs]
+                hit = [p for p in reached if p[0] is not None]
                 row["parity_runs"] = f"{len(hit)}/{len(rs)}"
-                hitw = [w for w in reach_wall if w is not None]
-                row["parity_seconds"] = float(np.median(hitw)) if len(hitw) == len(rs) else None
+                # The median over the runs, counting a run that never got there as slower than any
+                # that did: defined only when at least half of the runs reached parity.
+                if 2 * len(hit) > len(rs):
+                    missing = [math.inf] * (len(rs) - len(hit))
+                    order = sorted(float(p[0] or 0.0) for p in hit) + missing
+                    walls = sorted(float(p[1] or 0.0) for p in hit) + missing
+                    row["parity_steps"] = order[(len(rs) - 1) // 2]
+                    row["parity_seconds"] = walls[(len(rs) - 1) // 2]
+                else:
+                    row["parity_steps"] = row["parity_seconds"] = None
             rows.append(row)
     (dest / "comparison.json").write_text(json.dumps(rows, indent=1))
     _write_tables(rows, dest)
-    _write_headline(rows, dest, metric)
-    figures = _figures(cells, dest, metric)
+    verdicts = _write_headline(rows, dest)
+    figures = [*_verdict_figure(rows, dest), *_figures(cells, dest)]
     log(f"report: {len(runs)} runs, {len(cells)} cells -> {dest}")
-    return {"rows": rows, "figures": figures, "codes": codes}
+    return {"rows": rows, "verdicts": verdicts, "figures": figures, "codes": codes}
 
 
 def _fmt(x: float | None) -> str:
     return "n/a" if x is None else f"{x:.3g}"
 
 
+def _score(r: dict[str, Any]) -> str:
+    return f"{r['score']:.4f} [{r['low']:.4f}, {r['high']:.4f}]"
+
+
+def _poi(r: dict[str, Any]) -> str:
+    return f"{r['poi']:.2f} [{r['poi_low']:.2f}, {r['poi_high']:.2f}]"
+
+
+def _parity_text(r: dict[str, Any]) -> tuple[str, str]:
+    if "parity_runs" not in r:
+        return "", ""
+    if r["parity_steps"] is None:
+        return f"not reached ({r['parity_runs']})", "not reached"
+    return f"{r['parity_steps']:.3g} ({r['parity_runs']})", f"{r['parity_seconds']:.0f}"
+
+
 def _write_tables(rows: list[dict[str, Any]], dest: Path) -> None:
     import csv
 
-    keys = ["env", "scenario", "algo", "runs", "iqm", "low", "high", "terminated", "best_classical", "poi", "poi_low",
-            "poi_high", "parity_steps", "parity_seconds", "parity_runs"]
+    keys = ["env", "scenario", "algo", "kind", "runs", "episodes", "score", "low", "high", "success",
+            "iqm_abs_phi_sf", "horizon_abs_phi_sf", "best_classical", "poi", "poi_low", "poi_high", "parity_steps",
+            "parity_seconds", "parity_runs"]
     with open(dest / "comparison.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
         w.writeheader()
         w.writerows(rows)
-    lines = ["| env | scenario | algo | runs | IQM [95% CI] | terminated | P(improve over best classical) [95% CI] "
-             "| steps to parity | seconds to parity |", "|---|---|---|---:|---|---:|---|---:|---:|"]
-    for r in rows:
-        poi = f"{r['poi']:.2f} [{r['poi_low']:.2f}, {r['poi_high']:.2f}]" if "poi" in r else ""
-        steps = "" if "parity_runs" not in r else (_fmt(r["parity_steps"]) if r["parity_steps"] is not None
-                                                   else f"not reached ({r['parity_runs']})")
-        secs = "" if "parity_runs" not in r else (_fmt(r["parity_seconds"]) if r["parity_seconds"] is not None
-                                                  else "not reached")
-        best = " (best)" if r["algo"] == r["best_classical"] else ""
-        lines.append(f"| {r['env']} | {r['scenario']} | {r['algo']}{best} | {r['runs']} | {_fmt(r['iqm'])} "
-                     f"[{_fmt(r['low'])}, {_fmt(r['high'])}] | {r['terminated']:.2f} | {poi} | {steps} | {secs} |")
-    (dest / "comparison.md").write_text("\n".join(lines) + "\n")
+    lines = []
+    for env in sorted({r["env"] for r in rows}):
+        lines += [f"### {env}", "",
+                  "| scenario | algo | runs | score [95% CI] | success | IQM mean abs phi~ | P(beats best classical) "
+                  "| steps to parity | s to parity |", "|---|---|---:|---|---:|---:|---|---:|---:|"]
+        for r in (r for r in rows if r["env"] == env):
+            best = " (best)" if r["algo"] == r["best_classical"] else ""
+            steps, secs = _parity_text(r)
+            lines.append(f"| {r['scenario']} | {r['algo']}{best} | {r['runs']} | {_score(r)} | {r['success']:.2f} | "
+                         f"{_fmt(r['iqm_abs_phi_sf'])} | {_poi(r) if 'poi' in r else ''} | {steps} | {secs} |")
+        lines.append("")
+    (dest / "comparison.md").write_text("\n".join(lines))
 
 
-def _write_headline(rows: list[dict[str, Any]], dest: Path, metric: str) -> None:
-    """``headline.md``: one line per cell, the best classical baseline against each learned agent."""
-    learned = [a for a in LEARNED_ALGOS if any(r["algo"] == a for r in rows)]
-    lines = [f"IQM of the per-episode {metric} over held-out test episodes; in brackets the probability that an "
-             "agent's episode beats one of the best classical baseline's, with its 95 % interval (**bold**: the "
-             "interval lies above 0.5).", "",
-             "| env | scenario | best classical | " + " | ".join(learned) + " |",
-             "|---|---|---|" + "---|" * len(learned)]
+def verdict(best_learned: dict[str, Any] | None, best: dict[str, Any] | None) -> tuple[str, str]:
+    """The verdict of a cell, ``(winner, words)``, from the best learned agent's probability of
+    improvement over the best classical baseline: its interval above 0.5 (``"learned"``), below 0.5
+    (``"classical"``), across it (``"none"``), or no learned agent yet (``"incomplete"``)."""
+    if best_learned is None or best is None or "poi" not in best_learned:
+        return "incomplete", "incomplete"
+    if best_learned["poi_low"] > 0.5:
+        return "learned", f"{best_learned['algo']} beats {best['algo']}"
+    if best_learned["poi_high"] < 0.5:
+        return "classical", f"{best['algo']} beats every learned agent"
+    return "none", f"no clear winner ({best_learned['algo']} vs {best['algo']})"
+
+
+def _cell_rows(rows: list[dict[str, Any]]) -> list[tuple[str, str, dict[str, dict[str, Any]]]]:
     cells = sorted({(r["env"], r["scenario"]) for r in rows})
-    for env, scenario in cells:
-        cell = {r["algo"]: r for r in rows if r["env"] == env and r["scenario"] == scenario}
+    return [(e, s, {r["algo"]: r for r in rows if r["env"] == e and r["scenario"] == s}) for e, s in cells]
+
+
+def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, Any]]:
+    """``headline.md``: a line a cell: the oracle, the best classical baseline, the best learned agent
+    (the highest test score), each with the score's interval and success rate, the probability of
+    improvement, steps and seconds to parity, and the verdict."""
+    lines = ["Mean score over held-out test episodes (the return over the fixed horizon per step, in [0, 1]; "
+             "a failed episode's remaining steps count 0), its 95 % bootstrap interval and the success rate "
+             "(episodes that reached the time limit). P: the probability that an episode of the best learned agent "
+             "scores above one of the best classical baseline's, with its 95 % interval (**bold**: above 0.5).", "",
+             "| env | scenario | oracle | best classical | best learned | P | steps / s to parity | verdict |",
+             "|---|---|---|---|---|---|---|---|"]
+    verdicts = []
+    for env, scenario, cell in _cell_rows(rows):
+        oracle = cell.get("oracle")
         best = next((r for r in cell.values() if r["algo"] == r["best_classical"]), None)
-        parts = [f"{best['algo']} {_fmt(best['iqm'])}" if best else ""]
-        for algo in learned:
-            r = cell.get(algo)
-            if r is None or "poi" not in r:
-                parts.append("")
-                continue
-            poi = f"{r['poi']:.2f} [{r['poi_low']:.2f}, {r['poi_high']:.2f}]"
-            parts.append(f"{_fmt(r['iqm'])} ({'**' + poi + '**' if r['poi_low'] > 0.5 else poi})")
-        lines.append(f"| {env} | {scenario} | " + " | ".join(parts) + " |")
+        learned = [r for r in cell.values() if r["kind"] == "learned"]
+        top = max(learned, key=lambda r: r["score"]) if learned else None
+        winner, words = verdict(top, best)
+        verdicts.append({"env": env, "scenario": scenario, "verdict": words, "winner": winner,
+                         "best_classical": best["algo"] if best else None, "best_learned": top["algo"] if top else None,
+                         "poi_low": top.get("poi_low") if top else None})
+
+        def entry(r: dict[str, Any] | None, name: bool = True) -> str:
+            if r is None:
+                return ""
+            return (f"{r['algo']} " if name else "") + f"{_score(r)}, {r['success']:.0%}"
+
+        poi = ""
+        if top is not None and "poi" in top:
+            poi = f"**{_poi(top)}**" if top["poi_low"] > 0.5 else _poi(top)
+        steps, secs = _parity_text(top) if top is not None else ("", "")
+        lines.append(f"| {env} | {scenario} | {entry(oracle, name=False)} | {entry(best)} | {entry(top)} | {poi} | "
+                     f"{steps} / {secs} | {words} |")
+    lines += ["", *_verdict_summary(verdicts)]
     (dest / "headline.md").write_text("\n".join(lines) + "\n")
+    (dest / "verdicts.json").write_text(json.dumps(verdicts, indent=1))
+    return verdicts
+
+
+def _verdict_summary(verdicts: list[dict[str, Any]]) -> list[str]:
+    """The verdicts grouped in words: where learning wins, where it loses, where neither is shown."""
+    def cells(pred: Callable[[dict[str, Any]], bool]) -> str:
+        hit = [f"{v['env']}/{v['scenario']}" for v in verdicts if pred(v)]
+        return ", ".join(hit) if hit else "none"
+
+    return [f"- **A learned agent beats the best classical baseline** (interval above 0.5): "
+            f"{cells(lambda v: v['winner'] == 'learned')}.",
+            f"- **The best classical baseline beats every learned agent** (interval below 0.5): "
+            f"{cells(lambda v: v['winner'] == 'classical')}.",
+            f"- **No clear winner** (interval across 0.5): {cells(lambda v: v['winner'] == 'none')}.",
+            f"- Cells without a finished learned run: {cells(lambda v: v['winner'] == 'incomplete')}."]
 
 
 #: One look per algorithm in every figure: classical baselines dashed or dotted, agents solid.
 _STYLE: dict[str, dict[str, Any]] = {
     "law": {"color": "black", "ls": "--"}, "tuned_law": {"color": "tab:purple", "ls": "--"},
     "observer": {"color": "tab:brown", "ls": ":"}, "adaptive": {"color": "tab:gray", "ls": "-."},
+    "oracle": {"color": "gold", "ls": "-"},
     "ppo": {"color": "tab:blue"}, "ppo_history": {"color": "tab:orange"}, "residual_ppo": {"color": "tab:green"},
 }
 
 
-def _figures(cells: dict[tuple[str, str], Cell], dest: Path, metric: str) -> list[str]:
+def _verdict_figure(rows: list[dict[str, Any]], dest: Path) -> list[str]:
+    """``verdict.png``: per task a panel, the scenarios down, every algorithm's test score with its
+    interval across, as the reward lost over the horizon (``1 - score``, log axis: good controllers
+    differ in the third decimal of the score); the oracle is a star, the cell's best classical
+    baseline a ringed marker."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from vnhc_gym import stats
+    envs = sorted({r["env"] for r in rows})
+    if not envs:
+        return []
+    algos = [a for a in (*REFERENCE_ALGOS, *CLASSICAL_ALGOS, *LEARNED_ALGOS) if any(r["algo"] == a for r in rows)]
+    n_scen = max(len({r["scenario"] for r in rows if r["env"] == e}) for e in envs)
+    fig, axes = plt.subplots(1, len(envs), figsize=(4.2 * len(envs), 0.9 + 0.55 * n_scen * 1.6), squeeze=False)
+    for ax, env in zip(axes[0], envs, strict=True):
+        scen = sorted({r["scenario"] for r in rows if r["env"] == env})
+        for j, algo in enumerate(algos):
+            for i, scenario in enumerate(scen):
+                r = next((r for r in rows if r["env"] == env and r["scenario"] == scenario and r["algo"] == algo), None)
+                if r is None:
+                    continue
+                y = i + (j - (len(algos) - 1) / 2) * 0.8 / max(1, len(algos))
+                style = _STYLE.get(algo, {})
+                marker = "*" if algo == "oracle" else "s" if r["kind"] == "classical" else "o"
+                lost, lo, hi = (max(1.0 - v, 1e-5) for v in (r["score"], r["high"], r["low"]))
+                ax.errorbar(lost, y, xerr=[[max(0.0, lost - lo)], [max(0.0, hi - lost)]],
+                            fmt=marker, color=style.get("color"), ms=7 if algo == "oracle" else 4, lw=1,
+                            label=algo if i == 0 else None)
+                if algo == r["best_classical"]:
+                    ax.plot(lost, y, "o", mfc="none", mec="red", ms=10, mew=1.2, label="best classical")
+        ax.set_yticks(range(len(scen)), scen)
+        ax.invert_yaxis()
+        ax.set_xscale("log")
+        ax.set_xlabel("1 - test score (mean, 95 % CI; lower is better)")
+        ax.set_title(env, fontsize=10)
+        ax.grid(axis="x", alpha=0.3)
+    handles, labels = [], []
+    for ax in axes[0]:
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 5), fontsize=7)
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
+    path = dest / "verdict.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return [str(path)]
+
+
+def _figures(cells: dict[tuple[str, str], Cell], dest: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
 
     files = []
     envs = sorted({env for env, _ in cells})
@@ -424,44 +581,46 @@ def _figures(cells: dict[tuple[str, str], Cell], dest: Path, metric: str) -> lis
             cell = cells[(env, scenario)]
             for algo, rs in sorted(cell.runs.items()):
                 if algo in LEARNED_ALGOS:
-                    curves = [r["curve"] for r in rs if r.get("curve")]
+                    curves = [[p for p in r["curve"] if "score" in p] for r in rs if r.get("curve")]
+                    curves = [c for c in curves if c]
                     if not curves:
                         continue
                     n = min(len(c) for c in curves)
-                    steps = np.array([c[i]["steps"] for i in range(n) for c in curves[:1]])
-                    vals = np.median(np.array([[c[i][metric] for i in range(n)] for c in curves]), axis=0)
+                    steps = np.array([curves[0][i]["steps"] for i in range(n)])
+                    vals = np.median(np.array([[c[i][SCORE] for i in range(n)] for c in curves]), axis=0)
                     ax.plot(steps, vals, label=algo, **_STYLE.get(algo, {}))
                 else:
                     ax.axhline(rs[0]["validation_score"], lw=1, label=algo, **_STYLE.get(algo, {}))
-            ax.set_yscale("log")
             ax.set_title(scenario, fontsize=9)
             ax.set_xlabel("env steps")
-        axes[0][0].set_ylabel(f"validation IQM {metric}")
+        axes[0][0].set_ylabel("validation score (median over seeds)")
         axes[0][-1].legend(fontsize=6)
         fig.tight_layout()
         path = dest / f"learning_curves_{env}.png"
         fig.savefig(path, dpi=110)
         plt.close(fig)
         files.append(str(path))
-    # Performance profile: each run's test IQM over the k = 5 law's test IQM in its cell.
+    # Performance profile: each run's test score over the oracle's in its cell (1: the headroom is used
+    # up), the fraction of runs at or above each level.
     ratios: dict[str, list[float]] = {}
     for cell in cells.values():
-        law = cell.runs.get("law")
-        if not law:
+        oracle = cell.runs.get("oracle")
+        if not oracle:
             continue
-        ref = stats.iqm(np.asarray(law[0]["test"]["metrics"][metric]))
+        ref = float(np.mean(_episodes(oracle, SCORE)))
+        if ref <= 0:
+            continue
         for algo, rs in cell.runs.items():
             for r in rs:
-                ratios.setdefault(algo, []).append(stats.iqm(np.asarray(r["test"]["metrics"][metric])) / ref)
+                ratios.setdefault(algo, []).append(float(np.mean(_episodes([r], SCORE))) / ref)
     if ratios:
-        taus = np.logspace(-2, 3, 101)
+        taus = np.linspace(0.0, 1.1, 111)
         fig, ax = plt.subplots(figsize=(5, 3.5))
         for algo, vals in sorted(ratios.items()):
             v = np.asarray(vals)
-            ax.plot(taus, [(v <= t).mean() for t in taus], label=algo, **_STYLE.get(algo, {}))
-        ax.set_xscale("log")
-        ax.set_xlabel(f"{metric} / the k = 5 law's (per cell)")
-        ax.set_ylabel("fraction of runs at or below")
+            ax.plot(taus, [(v >= t).mean() for t in taus], label=algo, **_STYLE.get(algo, {}))
+        ax.set_xlabel("test score / the oracle's (per cell)")
+        ax.set_ylabel("fraction of runs at or above")
         ax.legend(fontsize=7)
         fig.tight_layout()
         path = dest / "performance_profile.png"
@@ -475,9 +634,9 @@ def _figures(cells: dict[tuple[str, str], Cell], dest: Path, metric: str) -> lis
 def add_arguments(parser: Any) -> None:
     """The options of ``vnhc-gym sweep``."""
     parser.add_argument("--config", help="a YAML file with any of the options below (command-line values win)")
-    parser.add_argument("--envs", nargs="+", help="tasks or env ids (default: flocking usv)")
+    parser.add_argument("--envs", nargs="+", help="tasks or env ids (default: every registered task)")
     parser.add_argument("--scenarios", nargs="+", help="scenarios (default: nominal)")
-    parser.add_argument("--algos", nargs="+", help=f"from {list(LEARNED_ALGOS + CLASSICAL_ALGOS)} (default: law ppo)")
+    parser.add_argument("--algos", nargs="+", help=f"from {list(ALL_ALGOS)} (default: law ppo)")
     parser.add_argument("--seeds", nargs="+", type=int, help="training seeds (default: 0)")
     parser.add_argument("-n", "--n-timesteps", type=int, help="training budget per learned run (default: 1e6)")
     parser.add_argument("--out", help="output folder (default: runs/sweep); on a cluster, shared storage")
@@ -491,7 +650,9 @@ def add_arguments(parser: Any) -> None:
 
 
 def _options(args: Any) -> dict[str, Any]:
-    opts: dict[str, Any] = {"envs": ["flocking", "usv"], "scenarios": ["nominal"], "algos": ["law", "ppo"],
+    from vnhc_gym.tasks import TASKS
+
+    opts: dict[str, Any] = {"envs": list(TASKS), "scenarios": ["nominal"], "algos": ["law", "ppo"],
                             "seeds": [0], "n_timesteps": 1_000_000, "out": "runs/sweep", "executor": None,
                             "address": None, "jobs": 1, "threads": 1, "test_episodes": 20, "seeds_by_scenario": None}
     if args.config:

@@ -4,6 +4,8 @@
   observation and the nominal model (plain, or the sampled-data variant).
 * :class:`ObserverController`: the same law fed by a state observer (noisy observations).
 * :class:`AdaptiveController`: the law with the mismatched parameters estimated online.
+* :class:`OracleController`: the headroom reference, the sampled-data law on the environment's true
+  state and parameters (not an observation-based controller).
 * :class:`ZeroPolicy` (no force) and :class:`RandomPolicy` (uniform actions, seeded).
 
 Every policy takes a single, wrapped or vector environment and predicts for one observation
@@ -13,8 +15,9 @@ Every policy takes a single, wrapped or vector environment and predicts for one 
 from vnhc_gym.baselines.adaptive import AdaptiveController
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
 from vnhc_gym.baselines.observer import ObserverController
+from vnhc_gym.baselines.oracle import OracleController
 from vnhc_gym.baselines.policy import Policy, RandomPolicy, ZeroPolicy, task_of
-from vnhc_gym.baselines.tuning import CLASSICAL, make_classical, tune
+from vnhc_gym.baselines.tuning import CLASSICAL, REFERENCE, make_classical, tune
 
-__all__ = ["AdaptiveController", "CLASSICAL", "DEFAULT_GAIN", "GeometricController", "ObserverController", "Policy",
-           "RandomPolicy", "ZeroPolicy", "make_classical", "task_of", "tune"]
+__all__ = ["AdaptiveController", "CLASSICAL", "DEFAULT_GAIN", "GeometricController", "ObserverController",
+           "OracleController", "Policy", "REFERENCE", "RandomPolicy", "ZeroPolicy", "make_classical", "task_of", "tune"]

@@ -66,6 +66,13 @@ class AdaptiveController(GeometricController):
         if self._fresh is not None and self._fresh.shape == rows.shape:
             self._fresh |= rows
 
+    def applied(self, action: ArrayLike) -> None:
+        """Predict the next state with the force the environment received (see :meth:`Policy.applied`)."""
+        if self._u is None:
+            return
+        a = np.asarray(action, dtype=np.float64).reshape(self._u.shape)
+        self._u = np.clip(np.where(np.isfinite(a), a, 0.0), -1.0, 1.0) * self.force_bound
+
     def _with(self, params: Array, theta: Array) -> Array:
         p = params.copy()
         p[:, self.index] = params[:, self.index] * np.exp(theta)
@@ -112,8 +119,10 @@ class AdaptiveController(GeometricController):
 
     def act(self, obs: Array) -> Array:
         p = self.estimates(obs)
-        u, singular = self.model.control(self._x, self.gain, p, on_singular="flag")
+        states: Array = self._x  # type: ignore[assignment]  # set by estimates
+        u, singular = self.law(states, p)
         a = np.clip(np.where(np.isfinite(u), u / self.force_bound, 0.0), -1.0, 1.0)
-        self._u = a * self.force_bound
+        # The force the environment receives from this action (``predict`` returns float32).
+        self._u = a.astype(np.float32).astype(np.float64) * self.force_bound
         self.last_singular = np.asarray(singular)
         return a

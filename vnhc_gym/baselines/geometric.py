@@ -85,12 +85,30 @@ class GeometricController(Policy):
     def __repr__(self) -> str:
         return f"GeometricController({self.task.name!r}, variant={self.variant!r}, gain={self.gain.tolist()})"
 
+    def law(self, states: Array, params: Array) -> tuple[Array, NDArray[np.bool_]]:
+        """``u*`` of the controller's model and the singular rows; a row whose state or parameters are
+        not finite or not valid (an estimate gone astray) gets ``u = 0`` and is flagged, so a
+        policy never raises in the middle of an episode."""
+        good = np.asarray(np.isfinite(states).all(axis=1) & np.isfinite(params).all(axis=1), dtype=bool)
+        positive = getattr(self.model, "param_positive", None)
+        if positive is not None and np.any(positive):
+            good &= np.all(params[:, np.asarray(positive, dtype=bool)] > 0, axis=1)
+        if good.all():
+            u_all, sing_all = self.model.control(states, self.gain, params, on_singular="flag")
+            return u_all, np.asarray(sing_all)
+        u = np.zeros((states.shape[0], self.act_dim))
+        singular = np.logical_not(good)
+        if good.any():
+            u[good], sing = self.model.control(states[good], self.gain, params[good], on_singular="flag")
+            singular[good] = np.asarray(sing)
+        return u, singular
+
     def force(self, obs: ArrayLike) -> tuple[Array, NDArray[np.bool_]]:
         """The unsaturated force ``u`` (N) of the chosen variant and the singular rows, for a batch of
         observations."""
         o, _ = self.check_obs(obs)
         states, params = self.task.controller_inputs(o)
-        u, singular = self.model.control(states, self.gain, params, on_singular="flag")
+        u, singular = self.law(states, params)
         if self.variant == "sampled":
             ok = ~np.asarray(singular)
             if ok.any():

@@ -71,6 +71,13 @@ class ObserverController(GeometricController):
         if self._fresh is not None and self._fresh.shape == rows.shape:
             self._fresh |= rows
 
+    def applied(self, action: ArrayLike) -> None:
+        """Predict the next state with the force the environment received (see :meth:`Policy.applied`)."""
+        if self._u is None:
+            return
+        a = np.asarray(action, dtype=np.float64).reshape(self._u.shape)
+        self._u = np.clip(np.where(np.isfinite(a), a, 0.0), -1.0, 1.0) * self.force_bound
+
     def estimate(self, obs: Array) -> tuple[Array, Array]:
         """Update the estimates with a batch of observations and return ``(states, params)``."""
         y, py = self.task.controller_inputs(obs)
@@ -103,8 +110,9 @@ class ObserverController(GeometricController):
 
     def act(self, obs: Array) -> Array:
         x, p = self.estimate(obs)
-        u, singular = self.model.control(x, self.gain, p, on_singular="flag")
+        u, singular = self.law(x, p)
         a = np.clip(np.where(np.isfinite(u), u / self.force_bound, 0.0), -1.0, 1.0)
-        self._u = a * self.force_bound
+        # The force the environment receives from this action (``predict`` returns float32).
+        self._u = a.astype(np.float32).astype(np.float64) * self.force_bound
         self.last_singular = np.asarray(singular)
         return a

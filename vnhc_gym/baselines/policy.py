@@ -44,7 +44,8 @@ class Policy:
 
     Subclasses set ``obs_dim``, ``act_dim`` and ``name`` and implement :meth:`act` (a batch of
     observations ``(n, d)`` to actions ``(n, m)`` in ``[-1, 1]``).  Stateful ones also implement
-    :meth:`reset_rows` (called for the rows where a new episode starts).
+    :meth:`reset_rows` (called for the rows where a new episode starts) and :meth:`applied` (told
+    the action the environment really received, when another policy changed it).
     """
 
     obs_dim: int
@@ -68,6 +69,12 @@ class Policy:
 
     def reset(self) -> None:
         """Forget every episode (stateless policies: nothing to do)."""
+
+    def applied(self, action: ArrayLike) -> None:
+        """The actions the environment received for the rows of the last :meth:`predict` (shape ``(m,)``
+        or ``(n, m)``, in ``[-1, 1]``), when they differ from the predicted ones: a residual added to
+        them, a wrapper clipped them.  A policy that predicts with the force it applied (an
+        observer, an adaptive law) must predict with these.  Stateless policies: nothing to do."""
 
     def predict(self, observation: ArrayLike, state: Any = None, episode_start: ArrayLike | None = None,
                 deterministic: bool = True) -> tuple[NDArray[np.float32], None]:

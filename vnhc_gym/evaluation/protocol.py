@@ -25,12 +25,16 @@ from numpy.typing import NDArray
 from vnhc_gym import stats
 from vnhc_gym.evaluation.metrics import METRICS, episode_metrics
 
-__all__ = ["EvalResult", "evaluate", "TEST_SEED", "VALIDATION_SEED"]
+__all__ = ["AGGREGATE", "EvalResult", "evaluate", "TEST_SEED", "VALIDATION_SEED"]
 
 #: First seed of the held-out test episodes (never used to choose anything).
 TEST_SEED = 10_000
 #: First seed of the validation episodes (used to tune gains and pick checkpoints).
 VALIDATION_SEED = 5_000
+#: How a metric is aggregated over episodes: the mean where every episode must count (the score,
+#: bounded in [0, 1], and the failure counts), the interquartile mean (robust to a few outlying
+#: episodes) for the diagnostics.  The IQM would trim the very failures the score counts.
+AGGREGATE = {"score": "mean", "success": "mean", "terminated": "mean", "horizon_abs_phi_sf": "mean"}
 
 
 @dataclass
@@ -67,8 +71,9 @@ class EvalResult:
         return int(self.abs_phi.shape[1])
 
     def summary(self, reps: int = 2000) -> dict[str, stats.Interval]:
-        """IQM of each metric over episodes with its 95 % stratified-bootstrap interval."""
-        return {name: stats.interval_estimates({"x": values[:, None]}, reps=reps)["x"]
+        """Each metric's aggregate over episodes (:data:`AGGREGATE`) with its 95 % bootstrap interval."""
+        return {name: stats.interval_estimates({"x": values[:, None]}, metric=AGGREGATE.get(name, "iqm"),
+                                               reps=reps)["x"]
                 for name, values in self.metrics.items()}
 
     def to_dict(self, series: bool = False) -> dict[str, Any]:
@@ -167,7 +172,7 @@ def evaluate(policy: Any, env_id: str, scenario: str = "nominal", n_episodes: in
     venv.close()
     per_episode = [episode_metrics(abs_phi[: length[i] + 1, i], abs_phi_sf[: length[i] + 1, i],
                                    force[: length[i], i], reward[: length[i], i], dt, bool(terminated[i]),
-                                   steps * dt) for i in range(n)]
+                                   steps * dt, horizon_steps=steps) for i in range(n)]
     metrics = {name: np.array([m[name] for m in per_episode]) for name in METRICS}
     return EvalResult(env_id=env_id, scenario=scenario, policy=_name_of(policy), seed=seed, dt=dt, metrics=metrics,
                       abs_phi=abs_phi, abs_phi_sf=abs_phi_sf, wall_time=wall, env_kwargs=dict(env_kwargs))

@@ -30,7 +30,7 @@ class UntrustedFileWarning(UserWarning):
 
 def list_zoo() -> list[str]:
     """Names of the shipped agents (``<task>-<algo>``)."""
-    return sorted(p.stem for p in ZOO_DIR.glob("*.zip"))
+    return sorted(p.stem for p in ZOO_DIR.glob("*.zip") if p.with_suffix(".json").exists())
 
 
 def sidecar_of(path: str | Path) -> dict[str, Any]:

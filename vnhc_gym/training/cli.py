@@ -56,5 +56,6 @@ def run(args: argparse.Namespace) -> int:
     test = meta["test"]["summary"]
     print(json.dumps({"model": f"{cfg.out}/{meta['name']}.zip", "steps": meta["n_timesteps"],
                       "steps_per_second": round(meta["steps_per_second"]),
+                      "test_score": test["score"], "test_success": test["success"],
                       "test_mean_abs_phi_sf_iqm": test["mean_abs_phi_sf"]}, indent=1))
     return 0

@@ -4,7 +4,10 @@ and tested on held-out episodes at the end.
 ``vnhc-gym train --algo ppo --env usv --scenario nominal --seed 0`` (or :func:`train`) reads the
 algorithm's RL Zoo file (``agents/hyperparams/<algo>.yml``), trains, and writes to ``--out``:
 
-* ``<stem>.zip``: the SB3 model with the best validation score;
+* ``<stem>.zip``: the SB3 model with the best validation score (the mean ``score`` of the
+  validation episodes: the return over the fixed horizon per step, a failed episode's remaining
+  steps counting 0, :mod:`vnhc_gym.evaluation.metrics`);
+* ``<stem>-final.zip``: the model at the end of training;
 * ``<stem>.json``: the sidecar: the run's configuration and hyperparameters, the package version and
   code fingerprint, the learning curve (env steps, wall time, validation IQMs), the observation
   statistics, and the test evaluation.
@@ -218,7 +221,7 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
         "version": vnhc_gym.__version__, "code": code_fingerprint(), "obs_rms": None, "frame_stack": frame_stack,
     }
     curve: list[dict[str, float]] = []
-    best = {"score": math.inf}
+    best = {"score": -math.inf}
     every = max(1, n_timesteps // max(1, cfg.eval_points))
     t_start = time.perf_counter()
     t_eval = 0.0
@@ -230,14 +233,17 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
         res = evaluate(agent, env_id, cfg.scenario, n_episodes=cfg.eval_episodes, seed=VALIDATION_SEED)
         s = res.summary(reps=200)
         point = {"steps": int(model.num_timesteps), "wall": t0 - t_start - t_eval,
+                 "score": s["score"].point, "score_low": s["score"].low, "score_high": s["score"].high,
+                 "success": s["success"].point,
                  "mean_abs_phi": s["mean_abs_phi"].point, "mean_abs_phi_sf": s["mean_abs_phi_sf"].point,
                  "return": s["return"].point, "terminated": s["terminated"].point}
         curve.append(point)
         if log is not None:
-            log(f"{stem}: {point['steps']:>9d} steps, {point['wall']:6.0f} s: validation IQM |phi~| "
-                f"{point['mean_abs_phi_sf']:.3g}")
-        if point["mean_abs_phi_sf"] < best["score"]:
-            best["score"] = point["mean_abs_phi_sf"]
+            log(f"{stem}: {point['steps']:>9d} steps, {point['wall']:6.0f} s: validation score {point['score']:.4f} "
+                f"(success {point['success']:.2f}, IQM |phi~| {point['mean_abs_phi_sf']:.3g})")
+        # Strictly better only: at a tie the earlier (for a residual agent: its base) stays.
+        if point["score"] > best["score"]:
+            best["score"] = point["score"]
             model.save(out_dir / f"{stem}.zip")
             meta["obs_rms"] = _rms_json(venv)
             meta["best_steps"] = point["steps"]
@@ -266,6 +272,8 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
     model.learn(total_timesteps=n_timesteps, callback=_Validate(), progress_bar=cfg.progress_bar)
     if not curve or curve[-1]["steps"] != model.num_timesteps:
         validate()
+    model.save(out_dir / f"{stem}-final.zip")
+    meta["final_obs_rms"] = _rms_json(venv)
     train_wall = time.perf_counter() - t_start - t_eval
     # The test: the best validated model, on held-out seeds.
     agent = _bound(AgentPolicy(Algo.load(out_dir / f"{stem}.zip", device="cpu"), meta), env_id, cfg.scenario)

@@ -7,6 +7,11 @@ builds); :class:`ResidualVectorAction` wraps a native vector environment (what `
 uses); :class:`ResidualPolicy` runs a trained residual agent with its base on the plain environment.
 With ``observe_base=True`` the base action is appended to the observation, so the agent sees what
 it corrects.
+
+A base with internal state (an observer, an adaptive law) predicts its next estimate with the force
+it applied; all three classes tell it the action the environment really received
+(``base.applied(...)``, :meth:`vnhc_gym.baselines.Policy.applied`), so exploration noise in the
+residual does not corrupt its estimate.
 """
 
 from __future__ import annotations
@@ -42,6 +47,13 @@ def _default_base(env: Any, base: Any, gain: float | None, settings: dict[str, A
     if not hasattr(base, "predict"):
         raise TypeError(f"base must have a predict(obs) method, got {type(base).__name__}")
     return base
+
+
+def _tell_base(base: Any, applied: NDArray[Any]) -> None:
+    """Tell a base policy the action the environment received (bases without state ignore it)."""
+    hook = getattr(base, "applied", None)
+    if callable(hook):
+        hook(applied)
 
 
 def _with_base(obs_space: spaces.Box, act_space: spaces.Box) -> spaces.Box:
@@ -101,6 +113,7 @@ class ResidualAction(gym.Wrapper):
         residual = self.scale * np.clip(np.asarray(action, dtype=np.float64).reshape(self._base_action.shape), -1, 1)
         applied = np.clip(self._base_action.astype(np.float64) + residual, -1.0, 1.0).astype(self._dtype)
         base = self._base_action
+        _tell_base(self.base, applied)
         obs, reward, terminated, truncated, info = self.env.step(applied)
         info["base_action"] = base
         info["residual_action"] = residual.astype(self._dtype)
@@ -153,6 +166,7 @@ class ResidualVectorAction(VectorWrapper):
         residual = self.scale * np.clip(np.asarray(actions, dtype=np.float64).reshape(self._base_action.shape), -1, 1)
         applied = np.clip(self._base_action.astype(np.float64) + residual, -1.0, 1.0).astype(self._dtype)
         base = self._base_action
+        _tell_base(self.base, applied)
         obs, reward, terminated, truncated, info = self.env.step(applied)
         done = np.asarray(terminated) | np.asarray(truncated)
         # SAME_STEP: done rows already show their new episode; NEXT_STEP: the rows done at the last
@@ -211,4 +225,5 @@ class ResidualPolicy:
         a, state = self.agent.predict(seen, state=state, episode_start=starts, deterministic=deterministic)
         out = np.clip(b + self.scale * np.clip(np.asarray(a, dtype=np.float64).reshape(b.shape), -1, 1), -1.0, 1.0)
         out32 = out.astype(np.float32)
+        _tell_base(self.base, out32)
         return (out32[0] if single else out32), state
