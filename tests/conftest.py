@@ -1,7 +1,10 @@
 """Shared fixtures of the environment tests: the registered ids, scenarios, exact comparisons.
 
 Every environment list comes from the task registry (:func:`vnhc_gym.tasks.env_ids`), so a task
-added to :mod:`vnhc_gym.tasks` is covered by every parametrised test without new test code.
+added to :mod:`vnhc_gym.tasks` is covered by every parametrised test without new test code.  The
+tutorial's task (``docs/new_task.md``) is registered here first, from the page's own code, so it is
+held to every registry-wide environment test too (the tests of shipped results, such as tuned
+settings and agents, take ``shipped_only``).
 """
 
 from __future__ import annotations
@@ -12,7 +15,11 @@ import os
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 
+import re  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
 from collections.abc import Callable, Iterator  # noqa: E402
+from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import gymnasium as gym  # noqa: E402
@@ -20,7 +27,26 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from vnhc_gym.envs.config import SCENARIOS  # noqa: E402
-from vnhc_gym.tasks import env_ids  # noqa: E402
+from vnhc_gym.tasks import TASKS, env_ids, register_task  # noqa: E402
+
+TUTORIAL = Path(__file__).resolve().parent.parent / "docs" / "new_task.md"
+TUTORIAL_TASK = "puck"
+
+
+def _register_tutorial_task() -> None:
+    """Save the tutorial's task module (its ``# puck_task.py`` block) where Python finds it and
+    register it as the tutorial does."""
+    if TUTORIAL_TASK in TASKS:
+        return
+    block = next(b for b in re.findall(r"```python\n(.*?)```", TUTORIAL.read_text(), re.S)
+                 if b.startswith("# puck_task.py"))
+    where = Path(tempfile.mkdtemp(prefix="vnhc_gym_tutorial_"))
+    (where / "puck_task.py").write_text(block)
+    sys.path.insert(0, str(where))
+    register_task(TUTORIAL_TASK, "PuckSwirl", "puck_task")
+
+
+_register_tutorial_task()
 
 
 def short_id(env_id: str) -> str:

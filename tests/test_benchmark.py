@@ -19,7 +19,9 @@ import vnhc_gym  # noqa: F401
 from vnhc_gym import benchmark
 from vnhc_gym.baselines import GeometricController, ZeroPolicy
 from vnhc_gym.evaluation import TEST_SEED, evaluate
-from vnhc_gym.tasks import TASKS, env_id, env_ids
+from vnhc_gym.tasks import env_id, env_ids, shipped_tasks
+
+TASKS = shipped_tasks()  # the package's own tasks (the tutorial's is registered by conftest)
 
 QUICK_POLICIES = ["zero", "random", "law", "inloop"]
 
@@ -46,11 +48,12 @@ def test_quick_benchmark_writes_its_files_for_every_env(quick: Any) -> None:
         assert (out / f"phi_{entry.env_name}.png").is_file(), entry.env_name
     with open(out / "benchmark.csv") as fh:
         rows = list(csv.DictReader(fh))
-    assert {r["env_id"] for r in rows} == set(env_ids("v1"))
-    expected = {(e, s, p) for e in env_ids("v1") for s in ("nominal", "noisy") for p in QUICK_POLICIES}
+    assert {r["env_id"] for r in rows} == set(env_ids("v1", shipped_only=True))
+    shipped = env_ids("v1", shipped_only=True)
+    expected = {(e, s, p) for e in shipped for s in ("nominal", "noisy") for p in QUICK_POLICIES}
     assert {(r["env_id"], r["scenario"], r["policy"]) for r in rows} == expected and len(rows) == len(expected)
     md = (out / "benchmark.md").read_text()
-    assert all(f"**{e}**" in md for e in env_ids("v1"))
+    assert all(f"**{e}**" in md for e in env_ids("v1", shipped_only=True))
     assert md in proc.stdout  # the printed tables are the written ones
     data = json.loads((out / "benchmark.json").read_text())
     assert data["settings"]["command"] == "vnhc-gym benchmark --quick"
@@ -60,7 +63,7 @@ def test_quick_benchmark_writes_its_files_for_every_env(quick: Any) -> None:
     assert "Traceback" not in proc.stderr
 
 
-@pytest.mark.parametrize("env", env_ids("v1"), ids=lambda e: e.removeprefix("vnhc_gym/"))
+@pytest.mark.parametrize("env", env_ids("v1", shipped_only=True), ids=lambda e: e.removeprefix("vnhc_gym/"))
 def test_quick_benchmark_numbers_are_the_protocols(quick: Any, env: str) -> None:
     out, proc = quick
     assert proc.returncode == 0, proc.stderr[-3000:]

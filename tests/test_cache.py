@@ -39,7 +39,7 @@ _RUN_USV = textwrap.dedent(f"""
         s = np.array({STATE!r})
         phi = model.phi(s).tolist()
         u = model.control(s, gains=2.0).tolist()
-    print(json.dumps({{"phi": phi, "u": u, "file": model.kernels.__file__,
+    print(json.dumps({{"phi": phi, "u": u, "file": model.compiled.__file__,
                       "warnings": [[w.category.__name__, str(w.message)] for w in caught]}}))
 """)
 

@@ -32,7 +32,7 @@ from vnhc_gym.mechanics import (
     simulate,
 )
 from vnhc_gym.mechanics.fleet import FleetLayout
-from vnhc_gym.mechanics.kernels import transversality, transversality_diagonal, transversality_pairs
+from vnhc_gym.mechanics.numerics import transversality, transversality_diagonal, transversality_pairs
 from vnhc_gym.systems import FLOCKING_PRESETS, make_flocking, make_sled, make_usv
 
 NAN, INF = float("nan"), float("inf")
@@ -295,7 +295,7 @@ def test_sled_measure_is_the_offset_of_its_mass() -> None:
     the normalised C is [[0, -a/sqrt(I/m + a^2)], [1, 0]], whose smallest singular value is
     a / sqrt(I/m + a^2); the slip cannot be steered when the mass sits on the blade (a -> 0)."""
     model = make_sled()
-    assert model.kernels.BLOCK == 2
+    assert model.compiled.BLOCK == 2
     rng = np.random.default_rng(4)
     s = rng.uniform(-2, 2, (5, 6))
     for m, inertia, a in ((20.0, 2.0, 0.3), (2e7, 2e6, 0.3), (1.0, 50.0, 2.0)):
@@ -378,7 +378,7 @@ def three_inputs() -> ConstrainedSystem:
 def test_full_decoupling_matrix_measure_is_the_smallest_singular_value() -> None:
     """|J_b|^2 = 1/m_b (J = I), |Y^a|^2 = f^a . M^-1 f^a; numpy's SVD of the normalised C."""
     model = three_inputs()
-    assert model.kernels.BLOCK == 3
+    assert model.compiled.BLOCK == 3
     rng = np.random.default_rng(5)
     s = rng.uniform(-2, 2, (6, 6))
     masses = np.array([0.7, 3.0, 1e6])

@@ -2,22 +2,28 @@
 
 The build needs the ``docs`` extra (MkDocs, Material, mkdocstrings); without it the build test is
 skipped.  The build reads the package with a static analyser (griffe), so it never imports
-vnhc_gym, numba or sympy, and takes a few seconds.
+vnhc_gym, numba or sympy, and takes a few seconds.  Docstrings cross-reference with autorefs'
+``[`Name`][vnhc_gym.path]``, never with Sphinx roles, which the site would show raw: the sources
+are scanned without the build, the built pages with it.
 """
 
 from __future__ import annotations
 
+import ast
 import importlib.util
+import io
 import os
 import re
 import subprocess
 import sys
+import tokenize
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs"
+PACKAGE = REPO / "vnhc_gym"
 
 #: Import names of what ``mkdocs.yml`` needs (mkdocs, mkdocs-material, mkdocstrings[python],
 #: pymdown-extensions, griffe-sphinx).
@@ -40,6 +46,44 @@ FORBIDDEN_TEXT = ("../shared", "NOTES.md", "geometric-stabilization-vnhc.tex")
 #: Absolute file-system paths (POSIX roots outside a repository, Windows drives, file: URLs).
 ABSOLUTE_PATH = re.compile(r"(?<![\w.:/-])(?:/(?:work|home|root|tmp|mnt|Users|opt|srv|var|usr|etc)/"
                            r"|[A-Za-z]:\\|file:/)")
+
+
+#: A Sphinx role (``:class:`Name```): mkdocstrings does not render it, the site would show it raw.  A
+#: docstring cross-references a documented object as ``[`Name`][vnhc_gym.full.path]`` (autorefs) and
+#: names anything else in plain code.
+SPHINX_ROLE = re.compile(r":(?:class|meth|func|mod|attr|data|exc|obj):")
+
+
+def _docstring_lines(tree: ast.Module) -> set[int]:
+    """Source lines of every docstring griffe reads: a module's, class's or function's first
+    statement, and the string right after an assignment (an attribute's docstring)."""
+    lines: set[int] = set()
+    for node in ast.walk(tree):
+        if not isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        body = node.body
+        strings = [body[0]] if body else []
+        strings += [nxt for prev, nxt in zip(body[:-1], body[1:], strict=True)
+                    if isinstance(prev, (ast.Assign, ast.AnnAssign))]
+        for stmt in strings:
+            if isinstance(stmt, ast.Expr) and isinstance(stmt.value, ast.Constant) \
+                    and isinstance(stmt.value.value, str):
+                lines.update(range(stmt.lineno, (stmt.end_lineno or stmt.lineno) + 1))
+    return lines
+
+
+def _raw_roles(path: Path, root: Path = REPO) -> list[str]:
+    """``file:line: text`` of every Sphinx role in the docstrings and comments of ``path`` (comments
+    too: a ``#:`` comment is an attribute's docstring)."""
+    source = path.read_text(encoding="utf-8")
+    doc_lines = _docstring_lines(ast.parse(source))
+    hits = []
+    for tok in tokenize.generate_tokens(io.StringIO(source).readline):
+        if tok.type == tokenize.COMMENT or (tok.type == tokenize.STRING and tok.start[0] in doc_lines):
+            for offset, line in enumerate(tok.string.splitlines()):
+                if SPHINX_ROLE.search(line):
+                    hits.append(f"{path.relative_to(root)}:{tok.start[0] + offset}: {line.strip()[:120]}")
+    return hits
 
 
 def _missing_docs_modules() -> list[str]:
@@ -91,6 +135,39 @@ def test_site_builds_strict(site: Path) -> None:
             assert f'id="{obj}"' in html, f"{page} does not document {obj}"
     math = (site / "math" / "index.html").read_text(encoding="utf-8")
     assert math.count('class="arithmatex"') > 50  # the formulas went through pymdownx.arithmatex
+
+
+def test_docstrings_have_no_sphinx_roles() -> None:
+    sources = sorted(PACKAGE.rglob("*.py"))
+    assert len(sources) > 20, "vnhc_gym sources not found"
+    hits = [hit for path in sources for hit in _raw_roles(path)]
+    assert not hits, ("Sphinx roles in docstrings or comments (mkdocstrings shows them raw; write "
+                      "[`Name`][vnhc_gym.full.path] for a documented object, `name` otherwise):\n" + "\n".join(hits))
+
+
+def test_role_scan_finds_roles(tmp_path: Path) -> None:
+    # The scan must see a role in a module, class or attribute docstring and in a comment, and
+    # ignore one in an ordinary string.
+    sample = tmp_path / "sample.py"
+    sample.write_text('"""Module, see :class:`A`."""\n'
+                      "X = 1\n"
+                      '"""Attribute, see :data:`X`."""\n'
+                      "#: Comment, see :func:`f`.\n"
+                      "Y = 2\n"
+                      "class A:\n"
+                      '    """Class, see :meth:`f`."""\n'
+                      'MESSAGE = f"not a docstring :class:`{X}`"\n', encoding="utf-8")
+    hits = _raw_roles(sample, root=tmp_path)
+    assert [h.split(":")[1] for h in hits] == ["1", "3", "4", "7"], hits
+
+
+def test_rendered_site_has_no_sphinx_roles(site: Path) -> None:
+    offending = {}
+    for page in sorted(site.rglob("*.html")):
+        text = re.sub(r"<[^>]+>", "", page.read_text(encoding="utf-8"))  # visible text: ":class:<code>X</code>"
+        if hits := sorted({m.group(0) for m in SPHINX_ROLE.finditer(text)}):
+            offending[str(page.relative_to(site))] = hits
+    assert not offending, f"raw Sphinx roles in the built site (check the docstrings): {offending}"
 
 
 def test_pages_reference_nothing_outside_the_repository() -> None:

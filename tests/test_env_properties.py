@@ -141,7 +141,7 @@ def option_strategies(default: Any) -> tuple[Any, Any]:
 
 
 def keyword_table(env_id: str) -> dict[str, tuple[Any, Any]]:
-    options = task_of_env_id(env_id).task_class.options
+    options = task_of_env_id(env_id).task_class.Options.defaults()
     return {**COMMON, **{name: option_strategies(default) for name, default in options.items()}}
 
 

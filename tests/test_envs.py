@@ -92,8 +92,9 @@ def test_registry_entry_defines_both_classes_and_both_versions(name: str) -> Non
     entry = TASKS[name]
     module = entry.load()
     env_cls = getattr(module, f"{entry.env_name}Env")
-    vec_cls = getattr(module, f"{entry.env_name}VectorEnv")
+    vec_cls = entry.vector_class
     assert issubclass(env_cls, ConstraintEnv) and issubclass(vec_cls, ConstraintVectorEnv)
+    assert vec_cls is getattr(module, f"{entry.env_name}VectorEnv")  # importable (and picklable) by name
     assert vec_cls.env_class is env_cls and entry.task_class is env_cls.task_class
     assert env_cls.task_class.name == name
     card = inspect.getdoc(env_cls) or ""
@@ -104,7 +105,7 @@ def test_registry_entry_defines_both_classes_and_both_versions(name: str) -> Non
         assert env_id in env_ids(v) and env_id in env_ids(None)
         spec = gym.spec(env_id)
         assert spec.entry_point == f"{entry.module}:{entry.env_name}Env"
-        assert spec.vector_entry_point == f"{entry.module}:{entry.env_name}VectorEnv"
+        assert spec.vector_entry_point(num_envs=2).unwrapped.__class__ is vec_cls
         assert spec.kwargs == extra
         assert spec.max_episode_steps == vnhc_gym.MAX_EPISODE_STEPS == 400
         assert task_of_env_id(env_id) is entry
@@ -549,7 +550,7 @@ def _bad_kwargs() -> list[Any]:
     }
     cases = []
     for env_id in env_ids(None):
-        opts = task_of_env_id(env_id).task_class.options
+        opts = task_of_env_id(env_id).task_class.Options.defaults()
         rows = list(common)
         rows += [({name: value}, name, (ValueError, TypeError)) for name, values in options.items() if name in opts
                  for value in values]
@@ -833,5 +834,5 @@ def test_scenarios_are_documented_in_every_card(v1_id: str) -> None:
     card = inspect.getdoc(getattr(entry.load(), f"{entry.env_name}Env")) or ""
     for name in SCENARIOS:
         assert name in card, name
-    for option in entry.task_class.options:
+    for option in entry.task_class.Options.defaults():
         assert f"``{option}``" in card, option

@@ -26,8 +26,8 @@ from vnhc_gym.mechanics import (
     simulate,
 )
 from vnhc_gym.mechanics.fleet import FleetLayout, check_autonomous
-from vnhc_gym.mechanics.kernels import solve_blocks
 from vnhc_gym.mechanics.model import FEEDBACK_MODES
+from vnhc_gym.mechanics.numerics import solve_blocks
 from vnhc_gym.systems import flocking as flocking_module
 from vnhc_gym.systems import flocking_system, make_flocking, make_usv
 from vnhc_gym.systems.flocking import MAX_AGENTS, flocking_layout
@@ -62,12 +62,12 @@ def assert_same(a: tuple | np.ndarray, b: tuple | np.ndarray) -> None:
 @pytest.mark.parametrize("n", [2, 3, 4, 6])
 def test_fleet_metadata_equals_written_out_system(n: int) -> None:
     fleet, full = make_flocking(n), written_out(n)
-    assert fleet.kernels is not full.kernels
+    assert fleet.compiled is not full.compiled
     for attr in ("name", "n", "m", "n_gains", "holonomic", "param_names", "output_names"):
         assert getattr(fleet, attr) == getattr(full, attr), attr
     np.testing.assert_array_equal(fleet.default_params, full.default_params)
-    assert fleet.kernels.BLOCK == full.kernels.BLOCK == 1  # C = diag((xd_N - zd_N)/m_b)
-    assert fleet.kernels.R == n - 1  # n - 1 copies of the two-particle unit
+    assert fleet.compiled.BLOCK == full.compiled.BLOCK == 1  # C = diag((xd_N - zd_N)/m_b)
+    assert fleet.compiled.R == n - 1  # n - 1 copies of the two-particle unit
 
 
 @pytest.mark.parametrize("n", [2, 3, 4, 6])
@@ -91,7 +91,7 @@ def test_fleet_step_equals_written_out_system_to_the_bit(n: int, feedback: str) 
     outs = []
     for model in (fleet, full):
         out, u_out, flags = np.empty_like(s), np.empty((b, n - 1)), np.empty(b, np.int64)
-        model.kernels.rk4(s, p, pl, u, k, FEEDBACK_MODES[feedback], lo, hi, 0.02, 2, 1e-10, out, u_out, flags)
+        model.compiled.rk4(s, p, pl, u, k, FEEDBACK_MODES[feedback], lo, hi, 0.02, 2, 1e-10, out, u_out, flags)
         outs.append((out, u_out, flags))
     assert_same(outs[0], outs[1])
     flags = outs[0][2]
@@ -387,7 +387,7 @@ def plane() -> ConstrainedSystem:
 @pytest.mark.parametrize("mass", [1e-12, 1.0, 1e12])
 def test_full_decoupling_matrix_singular_at_any_scale(mass: float) -> None:
     model = plane()
-    assert model.kernels.BLOCK == 2
+    assert model.compiled.BLOCK == 2
     s = np.array([[0.0, 0.0, 0.3, -0.7],  # x = 0: det = 1 - x = 1
                   [1.0, 0.0, 0.3, -0.7],  # x = 1: singular
                   [3.0, 5.0, -1.0, 2.0]])

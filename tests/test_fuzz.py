@@ -30,7 +30,7 @@ ODD_VALUES = st.one_of(
 
 def _names(env_id: str) -> list[str]:
     entry = next(e for e in TASKS.values() if env_id.endswith(f"/{e.env_name}-v1"))
-    return sorted({*CONFIG_FIELDS, *entry.task_class.options, "scenario", "not_an_argument"})
+    return sorted({*CONFIG_FIELDS, *entry.task_class.Options.defaults(), "scenario", "not_an_argument"})
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)

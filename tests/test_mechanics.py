@@ -153,7 +153,7 @@ def _oscillator_rk4(mode: str, s: np.ndarray, k_true: float, k_told: float, gain
     model = oscillator()
     out, u_out, flags = np.empty_like(s), np.empty((len(s), 1)), np.empty(len(s), np.int64)
     b = len(s)
-    model.kernels.rk4(s, np.full((b, 1), k_true), np.full((b, 1), k_told), np.full((b, 1), u_held),
+    model.compiled.rk4(s, np.full((b, 1), k_true), np.full((b, 1), k_told), np.full((b, 1), u_held),
                       np.full((b, 1), gain), FEEDBACK_MODES[mode], np.full(1, -np.inf), np.full(1, np.inf), dt,
                       substeps, 1e-10, out, u_out, flags)
     return out, u_out[:, 0], flags

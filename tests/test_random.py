@@ -1,4 +1,4 @@
-"""The per-row SplitMix64 streams of :mod:`vnhc_gym.kernels` (what a task's compiled hooks may use):
+"""The per-row SplitMix64 streams of :mod:`vnhc_gym.rng` (what a task's compiled hooks may use):
 distribution and independence checks against textbook facts, the parameter-mismatch draw, and the
 stream isolation the vector envs rely on."""
 
@@ -9,8 +9,9 @@ import pytest
 from numba import njit
 from scipy import stats
 
-import vnhc_gym.kernels as public_kernels
-from vnhc_gym.kernels import (
+import vnhc_gym.rng as public_kernels
+from vnhc_gym.mechanics import numerics as core_kernels
+from vnhc_gym.rng import (
     draw_mismatch,
     entropy_states,
     next_u64,
@@ -20,7 +21,6 @@ from vnhc_gym.kernels import (
     uniform,
     uniform_ab,
 )
-from vnhc_gym.mechanics import kernels as core_kernels
 from vnhc_gym.tasks import TASKS
 
 #: SplitMix64's increment: every draw adds it to the state (mod 2**64).
@@ -167,7 +167,7 @@ def test_a_row_draws_only_from_its_own_stream(task: str) -> None:
     """Resetting rows together or one by one, in any order, gives every row the same episode:
     what makes a vector env equal N single envs.  (Every registered task.)"""
     entry = TASKS[task]
-    cls = getattr(entry.load(), f"{entry.env_name}VectorEnv")
+    cls = entry.vector_class
 
     together = cls(4, scenario="mismatch")
     together.reset(seed=[10, 11, 12, 13])

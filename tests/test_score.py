@@ -195,7 +195,7 @@ def test_the_single_wrapper_and_the_policy_tell_their_base_the_applied_action() 
 
 
 # --------------------------------------------------------------------------- the oracle
-@pytest.mark.parametrize("env_id", env_ids("v1"), ids=lambda e: e.removeprefix("vnhc_gym/"))
+@pytest.mark.parametrize("env_id", env_ids("v1", shipped_only=True), ids=lambda e: e.removeprefix("vnhc_gym/"))
 def test_oracle_decays_phi_exactly_on_the_true_model(env_id: str) -> None:
     """Under mismatch the oracle still makes phi after each control period exp(-k dt) times the last (the
     sampled-data law on the true parameters), where the force bound does not bind."""

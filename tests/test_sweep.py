@@ -26,7 +26,9 @@ from vnhc_gym.baselines import GeometricController  # noqa: E402
 from vnhc_gym.baselines.tuning import CLASSICAL  # noqa: E402
 from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate  # noqa: E402
 from vnhc_gym.sweep import RunSpec, grid, report, run_sweep, status  # noqa: E402
-from vnhc_gym.tasks import TASKS, env_id  # noqa: E402
+from vnhc_gym.tasks import env_id, shipped_tasks  # noqa: E402
+
+TASKS = shipped_tasks()  # the package's own tasks (the tutorial's is registered by conftest)
 
 ENVS = list(TASKS)[:2]  # two registered tasks
 TINY = {"n_envs": 8, "n_steps": 64, "batch_size": 128}

@@ -507,7 +507,7 @@ def test_random_field_parameters_contract() -> None:
 def test_random_current_kernel_has_only_four_field_trig_calls() -> None:
     """The lattice field needs sin/cos(k0 x) and sin/cos(k0 y) only (plus the heading's sin/cos):
     products of those give every mode, so the acceleration has at most 6 sine/cosine calls."""
-    src = Path(make_usv("random").kernels.__file__).read_text()
+    src = Path(make_usv("random").compiled.__file__).read_text()
     start = src.index("def _accel(")
     end = src.find("\n@", start)
     body = src[start:end if end > 0 else None]

@@ -24,7 +24,9 @@ import gymnasium as gym  # noqa: E402
 import vnhc_gym  # noqa: E402
 from vnhc_gym.baselines import GeometricController  # noqa: E402
 from vnhc_gym.evaluation import METRICS, TEST_SEED, VALIDATION_SEED, evaluate  # noqa: E402
-from vnhc_gym.tasks import TASKS, env_ids  # noqa: E402
+from vnhc_gym.tasks import env_ids, shipped_tasks  # noqa: E402
+
+TASKS = shipped_tasks()  # the package's own tasks (the tutorial's is registered by conftest)
 from vnhc_gym.training import (  # noqa: E402
     ALGOS,
     AgentPolicy,
@@ -37,7 +39,7 @@ from vnhc_gym.training import (  # noqa: E402
 )
 from vnhc_gym.training.agents import ZOO_DIR, UntrustedFileWarning  # noqa: E402
 
-ENVS = env_ids("v1")
+ENVS = env_ids("v1", shipped_only=True)
 TINY = {"n_envs": 8, "n_steps": 64, "batch_size": 128}
 #: variant -> (algo, extra overrides)
 VARIANTS = {"ppo": ("ppo", {}), "residual_ppo": ("residual_ppo", {}), "history": ("ppo", {"frame_stack": 4})}

@@ -1,12 +1,12 @@
 """vnhc_gym: Gymnasium benchmark environments for virtual nonholonomic constraints.
 
-Importing the package registers every task of :mod:`vnhc_gym.tasks` as ``vnhc_gym/<EnvName>-v0``
+Importing the package registers every task of `vnhc_gym.tasks` as ``vnhc_gym/<EnvName>-v0``
 and ``-v1`` (``gym.make("vnhc_gym:vnhc_gym/USVStream-v1")`` imports it for you).
 """
 
 from vnhc_gym.tasks import TASKS, env_id, env_ids
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 #: Episode length of the registered environments (400 steps of 0.05 s = 20 s).
 MAX_EPISODE_STEPS = 400

@@ -9,7 +9,7 @@ Policies
     period; and its sampled-data variant (the held control that makes ``phi`` after one period of
     the nominal RK4 map equal ``exp(-k dt) phi``).
 ``tuned_law``, ``observer``, ``adaptive``
-    The classical baselines of :mod:`vnhc_gym.baselines.tuning` with the settings chosen on
+    The classical baselines of [`vnhc_gym.baselines.tuning`][vnhc_gym.baselines.tuning] with the settings chosen on
     validation episodes for each cell (``vnhc_gym/baselines/settings.json``, written by
     ``experiments/train_compare.py --publish``; their defaults where a cell has none).
 ``inloop``
@@ -18,7 +18,7 @@ Policies
 ``oracle``
     The headroom reference (not an observation-based policy either): the sampled-data law on the
     environment's true state and parameters, its gain chosen per cell on validation episodes
-    (:class:`~vnhc_gym.baselines.OracleController`).
+    ([`OracleController`][vnhc_gym.baselines.OracleController]).
 shipped agents
     ``<algo>@<scenario>`` from ``vnhc_gym/agents_zoo``: each agent runs only in the cell it was trained
     in (its task and scenario), so a row never shows an agent outside the conditions it learned.
@@ -112,7 +112,7 @@ def _agents() -> list[PolicySpec]:
 
 def run_benchmark(tasks: list[str], scenarios: list[str], specs: list[PolicySpec], episodes: int, seed: int,
                   max_time: float, log: Callable[[str], None]) -> list[Any]:
-    """Every (task, scenario, policy) cell; returns the :class:`~vnhc_gym.evaluation.EvalResult` list."""
+    """Every (task, scenario, policy) cell; returns the [`EvalResult`][vnhc_gym.evaluation.EvalResult] list."""
     from vnhc_gym.evaluation import evaluate
     from vnhc_gym.tasks import env_id
 

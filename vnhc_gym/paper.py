@@ -1,8 +1,8 @@
 """Reproduce the figures of the paper's Section IV (``vnhc-gym reproduce --out DIR``).
 
 Every run uses the paper's parameters, initial states, step (``dt = 0.01``) and durations
-(flocking 500 s, USV 100 s) from :data:`~vnhc_gym.systems.FLOCKING_PRESETS` and
-:data:`~vnhc_gym.systems.USV_PRESETS`, with the stabilising law re-evaluated at every RK4 stage
+(flocking 500 s, USV 100 s) from `vnhc_gym.systems.FLOCKING_PRESETS` and
+`vnhc_gym.systems.USV_PRESETS`, with the stabilising law re-evaluated at every RK4 stage
 (``feedback="continuous"``, the theorem's setting).  Figures written:
 
 ==================================  =====================================================
@@ -45,7 +45,7 @@ PRINTED_LAW_DURATION = 20.0  #: seconds simulated for the printed-law comparison
 PRINTED_LAW_OFFSET = 0.3  #: sideways velocity offset added to the paper's start (the docs' errata: the USV law)
 USV_CASES = ("paper-northeast", "paper-anticyclone")
 
-#: Every file :func:`reproduce` writes, in order.
+#: Every file `reproduce` writes, in order.
 FIGURES: tuple[str, ...] = (
     "flocking_trajectories.png",
     "flocking_phi3d.png",
@@ -236,7 +236,7 @@ def _printed_usv_law(model: ConstrainedSystem, state: Array, params: Array) -> A
 
 
 def _rk4_with_law(model: ConstrainedSystem, s0: Array, params: Array, dt: float, n_steps: int) -> Array:
-    """Plain RK4 with :func:`_printed_usv_law` re-evaluated at every stage (like ``continuous``)."""
+    """Plain RK4 with `_printed_usv_law` re-evaluated at every stage (like ``continuous``)."""
     def f(s: Array) -> Array:
         return np.concatenate([s[3:], model.acceleration(s, _printed_usv_law(model, s, params)[0], params)])
 

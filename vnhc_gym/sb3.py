@@ -1,6 +1,6 @@
 """Stable-Baselines3 ``VecEnv`` over a Gymnasium ``VectorEnv`` (SB3 cannot take one directly).
 
-:class:`GymnasiumVecEnvAdapter` presents any ``gymnasium.vector.VectorEnv`` (the native
+`GymnasiumVecEnvAdapter` presents any ``gymnasium.vector.VectorEnv`` (the native
 ``vnhc_gym`` vector envs, ``SyncVectorEnv``, ...) with SB3's ``DummyVecEnv`` semantics: a
 finished sub-environment is reset in the same step (the returned observation is the new
 episode's), its ``info`` is the last step's with ``terminal_observation`` and
@@ -208,7 +208,7 @@ def make_sb3_vec_env(env_id: str, n_envs: int = 1, seed: int | None = None, *, m
 
     The native vector env (``gym.make_vec(..., vectorization_mode="vector_entry_point",
     autoreset_mode=SAME_STEP, **kwargs)``; ids without a vector entry point get a
-    ``SyncVectorEnv``) wrapped in :class:`GymnasiumVecEnvAdapter`, seeded like SB3's
+    ``SyncVectorEnv``) wrapped in `GymnasiumVecEnvAdapter`, seeded like SB3's
     ``make_vec_env`` (``seed(seed)``: sub-env ``i`` starts from ``seed + i`` at the first
     ``reset()``; None draws a random base seed) and, with ``monitor=True`` (default, the
     counterpart of ``make_vec_env``'s ``Monitor``), wrapped in ``VecMonitor`` so that SB3 logs

@@ -41,7 +41,7 @@ __all__ = [
 ]
 
 METRICS = ("iqm", "mean", "median")
-"""Names accepted by :func:`interval_estimates` for its vectorised metrics."""
+"""Names accepted by [`interval_estimates`][vnhc_gym.stats.interval_estimates] for its vectorised metrics."""
 
 # Bound on the elements of one block of bootstrap replicates (~16 MiB per float64 array), so
 # that memory stays flat however many replicates are asked for.
@@ -379,7 +379,7 @@ def interval_estimates(score_dict: Mapping[str, ArrayLike],
     score_dict : mapping of str to array_like of shape (n_runs, n_tasks)
         Scores per algorithm, all on the same tasks.
     metric : {"iqm", "mean", "median"} or callable, optional
-        Aggregate to estimate, as in :func:`aggregate_metrics`.  A callable receives one
+        Aggregate to estimate, as in [`aggregate_metrics`][vnhc_gym.stats.aggregate_metrics].  A callable receives one
         ``(n_runs, n_tasks)`` array and returns a float; it is called once per replicate, so it
         is much slower than the named metrics.
     reps : int, optional
@@ -394,7 +394,7 @@ def interval_estimates(score_dict: Mapping[str, ArrayLike],
     Returns
     -------
     dict of str to Interval
-        One :class:`Interval` per algorithm, in the order of ``score_dict``.
+        One [`Interval`][vnhc_gym.stats.Interval] per algorithm, in the order of ``score_dict``.
 
     Raises
     ------
@@ -419,7 +419,8 @@ def interval_estimates(score_dict: Mapping[str, ArrayLike],
 
 def probability_of_improvement_interval(x: ArrayLike, y: ArrayLike, lower_is_better: bool, reps: int = 2000,
                                         confidence: float = 0.95, seed: int | None = 0) -> Interval:
-    """:func:`probability_of_improvement` with a stratified-bootstrap percentile interval.
+    """[`probability_of_improvement`][vnhc_gym.stats.probability_of_improvement] with a
+    stratified-bootstrap percentile interval.
 
     Each replicate resamples the runs of ``x`` and, independently, the runs of ``y``, within
     each task (rliable's ``StratifiedIndependentBootstrap``, used for its probability of
@@ -448,8 +449,8 @@ def probability_of_improvement_interval(x: ArrayLike, y: ArrayLike, lower_is_bet
     Raises
     ------
     ValueError
-        As :func:`probability_of_improvement`, or for ``reps < 1`` or ``confidence`` outside
-        ``(0, 1)``.
+        As [`probability_of_improvement`][vnhc_gym.stats.probability_of_improvement], or for
+        ``reps < 1`` or ``confidence`` outside ``(0, 1)``.
     """
     xa, ya, lower = _check_pair(x, y, lower_is_better)
     _check_bootstrap_args(reps, confidence)
@@ -473,7 +474,7 @@ def probability_of_improvement_interval(x: ArrayLike, y: ArrayLike, lower_is_bet
 def performance_profile_intervals(score_dict: Mapping[str, ArrayLike], taus: ArrayLike, lower_is_better: bool,
                                   reps: int = 2000, confidence: float = 0.95,
                                   seed: int | None = 0) -> dict[str, ProfileBand]:
-    """:func:`performance_profile` with pointwise stratified-bootstrap percentile bands.
+    """[`performance_profile`][vnhc_gym.stats.performance_profile] with pointwise stratified-bootstrap percentile bands.
 
     As rliable's ``create_performance_profile`` (score distributions, percentile method, no
     task bootstrap).
@@ -485,13 +486,14 @@ def performance_profile_intervals(score_dict: Mapping[str, ArrayLike], taus: Arr
     taus : array_like, scalar or 1-D
         Thresholds.
     lower_is_better : bool
-        Direction of improvement, see :func:`performance_profile`.
+        Direction of improvement, see [`performance_profile`][vnhc_gym.stats.performance_profile].
     reps : int, optional
         Number of bootstrap replicates.
     confidence : float, optional
         Coverage of the two-sided band at each threshold, in ``(0, 1)``.
     seed : int or None, optional
-        Seed of the resampling, fresh for every algorithm as in :func:`interval_estimates`.
+        Seed of the resampling, fresh for every algorithm as in
+        [`interval_estimates`][vnhc_gym.stats.interval_estimates].
 
     Returns
     -------
@@ -501,7 +503,8 @@ def performance_profile_intervals(score_dict: Mapping[str, ArrayLike], taus: Arr
     Raises
     ------
     ValueError
-        As :func:`performance_profile`, or for ``reps < 1`` or ``confidence`` outside ``(0, 1)``.
+        As [`performance_profile`][vnhc_gym.stats.performance_profile], or for ``reps < 1`` or
+        ``confidence`` outside ``(0, 1)``.
     """
     lower = _check_bool("lower_is_better", lower_is_better)
     data = _as_score_dict(score_dict)
@@ -580,7 +583,7 @@ def steps_to_parity(steps: ArrayLike, values: ArrayLike, target: float, lower_is
 def time_to_parity(times: ArrayLike, values: ArrayLike, target: float, lower_is_better: bool = True) -> float | None:
     """First time at which a learning curve reaches ``target``.
 
-    The same computation as :func:`steps_to_parity` with wall-clock (or simulated) times as
+    The same computation as [`steps_to_parity`][vnhc_gym.stats.steps_to_parity] with wall-clock (or simulated) times as
     the x coordinates; only the name of the argument in error messages differs.
     """
     return _first_reach("times", times, values, target, lower_is_better)

@@ -1,6 +1,6 @@
 """A grid of training-and-evaluation runs, on one machine or a Ray cluster, resumable, and its report.
 
-A run is one :class:`RunSpec`: a learned agent (``ppo``, ``residual_ppo``, ``ppo_history``) trained
+A run is one `RunSpec`: a learned agent (``ppo``, ``residual_ppo``, ``ppo_history``) trained
 and tested, a classical baseline (``law``, ``tuned_law``, ``observer``, ``adaptive``) tuned on
 validation episodes and tested, or the headroom reference ``oracle`` (the law in the loop on the true
 state and parameters), tuned and tested the same way.  Every choice (settings, checkpoints, the best
@@ -9,13 +9,13 @@ horizon per step, failed episodes' remaining steps counting 0), higher is better
 
 A run's outputs go to ``<out>/runs/<stem>.*`` under a stable name derived from its configuration,
 with the sidecar (``<stem>.json``) written last: a run with a sidecar is finished.  Rerunning the
-same grid skips finished runs, reruns failed or partial ones, and :func:`report` warns when finished
+same grid skips finished runs, reruns failed or partial ones, and [`report`][vnhc_gym.sweep.report] warns when finished
 runs come from different code versions.
 
 Executors: ``local`` (an in-process loop, or ``jobs`` worker processes) and ``ray`` (one Ray task
 per run with its CPUs declared, retried ``retries`` times, then recorded as failed with its
 traceback; a local Ray instance by default, a cluster with ``address``).  Both run the same
-:func:`run_one`, so they give the same numbers for the same seeds.
+`run_one`, so they give the same numbers for the same seeds.
 """
 
 from __future__ import annotations
@@ -180,7 +180,7 @@ def _best_classical(spec: RunSpec, out: str | Path, env_id: str) -> tuple[str, d
 
 
 def _guarded(spec: RunSpec, out: str, threads: int) -> tuple[str, str | None]:
-    """:func:`run_one` that records a failure (with its traceback) instead of raising."""
+    """`run_one` that records a failure (with its traceback) instead of raising."""
     try:
         run_one(spec, out, threads)
         return spec.stem, None
@@ -325,7 +325,7 @@ def report(out: str | Path, reps: int = 2000, log: Callable[[str], None] = print
     classical baseline is the one with the highest *validation* score (chosen without the test
     episodes); the oracle is the headroom reference.  For each learned agent: the probability that
     one of its episodes scores above one of the best classical baseline's, with its interval, and
-    the median env steps and seconds to parity (:func:`_parity`) over its runs, or "not reached".
+    the median env steps and seconds to parity (`_parity`) over its runs, or "not reached".
     Files: ``comparison.{json,csv,md}`` (every row), ``headline.md`` (one line a cell: the oracle,
     the best classical, the best learned and the verdict), ``verdict.png`` (the same at a glance),
     ``learning_curves_<env>.png`` and ``performance_profile.png``.

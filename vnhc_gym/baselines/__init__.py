@@ -1,12 +1,16 @@
 """Classical baselines with the Stable-Baselines3 ``predict`` interface, for every task.
 
-* :class:`GeometricController`: the stabilising law ``u* = C^-1 (-K phi - G(phi))`` from the
-  observation and the nominal model (plain, or the sampled-data variant).
-* :class:`ObserverController`: the same law fed by a state observer (noisy observations).
-* :class:`AdaptiveController`: the law with the mismatched parameters estimated online.
-* :class:`OracleController`: the headroom reference, the sampled-data law on the environment's true
-  state and parameters (not an observation-based controller).
-* :class:`ZeroPolicy` (no force) and :class:`RandomPolicy` (uniform actions, seeded).
+* [`GeometricController`][vnhc_gym.baselines.GeometricController]: the stabilising law
+  ``u* = C^-1 (-K phi - G(phi))`` from the observation and the nominal model (plain, or the
+  sampled-data variant).
+* [`ObserverController`][vnhc_gym.baselines.ObserverController]: the same law fed by a state
+  observer (noisy observations).
+* [`AdaptiveController`][vnhc_gym.baselines.AdaptiveController]: the law with the mismatched
+  parameters estimated online.
+* [`OracleController`][vnhc_gym.baselines.OracleController]: the headroom reference, the
+  sampled-data law on the environment's true state and parameters (not an observation-based
+  controller).
+* `ZeroPolicy` (no force) and `RandomPolicy` (uniform actions, seeded).
 
 Every policy takes a single, wrapped or vector environment and predicts for one observation
 ``(d,)`` or a batch ``(n, d)``, returning float32 actions in ``[-1, 1]``.

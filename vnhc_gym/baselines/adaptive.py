@@ -2,11 +2,12 @@
 
 Under ``mismatch`` the true masses (and, for the USV, inertia and current strength) differ from the
 nominal ones the plain law is told, so ``u*`` no longer cancels the drift and ``phi`` settles at
-an offset.  :class:`AdaptiveController` estimates the task's ``uncertain`` parameters from what it
-sees: each step it predicts the observed state with the controller's model and the force it
-applied, and corrects the estimate by an extended Kalman filter on the prediction error (the
-Jacobian by finite differences through the model's RK4 step map).  The law then uses the estimate.
-Parameters are estimated as ``log`` of their ratio to the nominal value, so they stay positive.
+an offset.  [`AdaptiveController`][vnhc_gym.baselines.AdaptiveController] estimates the task's
+``uncertain`` parameters from what it sees: each step it predicts the observed state with the
+controller's model and the force it applied, and corrects the estimate by an extended Kalman filter
+on the prediction error (the Jacobian by finite differences through the model's RK4 step map).  The
+law then uses the estimate.  Parameters are estimated as ``log`` of their ratio to the nominal
+value, so they stay positive.
 """
 
 from __future__ import annotations
@@ -67,7 +68,8 @@ class AdaptiveController(GeometricController):
             self._fresh |= rows
 
     def applied(self, action: ArrayLike) -> None:
-        """Predict the next state with the force the environment received (see :meth:`Policy.applied`)."""
+        """Predict the next state with the force the environment received (see
+        [`Policy.applied`][vnhc_gym.baselines.Policy.applied])."""
         if self._u is None:
             return
         a = np.asarray(action, dtype=np.float64).reshape(self._u.shape)

@@ -1,8 +1,8 @@
 """The geometric stabilising law as a policy that sees only the observation, for any task.
 
 The task says how to read the state back from an observation and which (nominal) model a
-controller may use (:meth:`~vnhc_gym.tasks.base.Task.controller_inputs`); the law itself is the
-core's :meth:`~vnhc_gym.mechanics.ConstrainedSystem.control`, ``u* = C^-1 (-K phi - G(phi))``.
+controller may use ([`controller_inputs`][vnhc_gym.tasks.base.Task.controller_inputs]); the law itself is the
+core's [`control`][vnhc_gym.mechanics.ConstrainedSystem.control], ``u* = C^-1 (-K phi - G(phi))``.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ class GeometricController(Policy):
     variant : {"plain", "sampled"}
         ``"plain"``: ``u*`` at the observed state, held over the control period.  ``"sampled"``: the
         held control that makes ``phi`` after one period of the nominal RK4 step map equal
-        ``exp(-K dt) phi`` (:func:`vnhc_gym.mechanics.sampled_control`).
+        ``exp(-K dt) phi`` ([`vnhc_gym.mechanics.sampled_control`][vnhc_gym.mechanics.sampled_control]).
     iters : int, default 4
         Newton iterations of the sampled variant.
 

@@ -1,15 +1,16 @@
 """The geometric law fed by a state observer: for noisy observations.
 
 The plain law acts on each noisy observation as if it were the state, so the noise goes straight
-into the force.  :class:`ObserverController` keeps an estimate of the state instead: it predicts
-the next state with the nominal model and the force it applied (one RK4 step of the controller's
-model, the same map the environment integrates), then moves the prediction a fraction ``alpha``
-of the way towards the state read from the new observation (a constant-gain observer; the
-angles of the task's ``angles`` are compared modulo 2 pi).  The law acts on the estimate.  With an
-exact model the prediction carries the dynamics, so a small ``alpha`` averages the noise over
-about ``1 / alpha`` steps without lagging behind the motion; the model's own error (a current
-known only locally, a mass that is off) sets how small ``alpha`` may go.  The gain and ``alpha``
-are chosen on validation episodes (:mod:`vnhc_gym.baselines.tuning`).
+into the force.  [`ObserverController`][vnhc_gym.baselines.ObserverController] keeps an estimate of
+the state instead: it predicts the next state with the nominal model and the force it applied (one
+RK4 step of the controller's model, the same map the environment integrates), then moves the
+prediction a fraction ``alpha`` of the way towards the state read from the new observation (a
+constant-gain observer; the angles of the task's ``angles`` are compared modulo 2 pi).  The law acts
+on the estimate.  With an exact model the prediction carries the dynamics, so a small ``alpha``
+averages the noise over about ``1 / alpha`` steps without lagging behind the motion; the model's own
+error (a current known only locally, a mass that is off) sets how small ``alpha`` may go.  The gain
+and ``alpha`` are chosen on validation episodes
+([`vnhc_gym.baselines.tuning`][vnhc_gym.baselines.tuning]).
 """
 
 from __future__ import annotations
@@ -44,8 +45,8 @@ class ObserverController(GeometricController):
     Notes
     -----
     The estimate of a batch row starts from its first observation; ``predict(obs, episode_start=...)``
-    (or :meth:`reset`) restarts rows where a new episode begins, as the evaluation protocol and the
-    residual wrappers do.
+    (or [`reset`][vnhc_gym.baselines.Policy.reset]) restarts rows where a new episode begins, as the
+    evaluation protocol and the residual wrappers do.
     """
 
     def __init__(self, env: Any, gain: ArrayLike = DEFAULT_GAIN, alpha: float = 0.03,
@@ -72,7 +73,8 @@ class ObserverController(GeometricController):
             self._fresh |= rows
 
     def applied(self, action: ArrayLike) -> None:
-        """Predict the next state with the force the environment received (see :meth:`Policy.applied`)."""
+        """Predict the next state with the force the environment received (see
+        [`Policy.applied`][vnhc_gym.baselines.Policy.applied])."""
         if self._u is None:
             return
         a = np.asarray(action, dtype=np.float64).reshape(self._u.shape)

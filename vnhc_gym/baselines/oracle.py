@@ -1,13 +1,14 @@
 """The headroom reference: the sampled-data law on the true state and the episode's true parameters.
 
-:class:`OracleController` is not a controller anyone could field: it ignores the observation and
-reads the environment's own state and true parameters (so no observation noise, no model mismatch,
-no current known only locally).  On those it applies the sampled-data variant of the geometric law
-(:func:`vnhc_gym.mechanics.sampled_control`): the held force that makes ``phi`` after one control
-period of the environment's own RK4 step map equal ``exp(-K dt) phi``, clipped to the force bound.
-What it cannot undo is what nobody can: the force bound and unforeseeable velocity kicks.  The
-distance between it and a cell's best classical baseline says how much a better controller,
-learned or not, could still gain there.
+[`OracleController`][vnhc_gym.baselines.OracleController] is not a controller anyone could field: it
+ignores the observation and reads the environment's own state and true parameters (so no observation
+noise, no model mismatch, no current known only locally).  On those it applies the sampled-data
+variant of the geometric law
+([`vnhc_gym.mechanics.sampled_control`][vnhc_gym.mechanics.sampled_control]): the held force that
+makes ``phi`` after one control period of the environment's own RK4 step map equal
+``exp(-K dt) phi``, clipped to the force bound.  What it cannot undo is what nobody can: the force
+bound and unforeseeable velocity kicks.  The distance between it and a cell's best classical
+baseline says how much a better controller, learned or not, could still gain there.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ ORACLE_GAIN = 40.0
 
 
 def _batch_of(env: Any) -> Any:
-    """The :class:`~vnhc_gym.envs.runtime.Batch` of a vnhc_gym environment (single, wrapped or vector)."""
+    """The `vnhc_gym.envs.runtime.Batch` of a vnhc_gym environment (single, wrapped or vector)."""
     obj = env
     for _ in range(64):
         batch = getattr(obj, "batch", None) or getattr(getattr(obj, "unwrapped", None), "batch", None)
@@ -48,7 +49,8 @@ class OracleController(GeometricController):
     ----------
     env : gymnasium Env or VectorEnv
         The vnhc_gym environment the oracle acts on; it must be the one whose observations are
-        passed to :meth:`predict` (row ``i`` of a batch is sub-environment ``i``).
+        passed to [`predict`][vnhc_gym.baselines.OracleController.predict] (row ``i`` of a batch is
+        sub-environment ``i``).
     gain : float or array_like, default 40
         ``diag K`` of the sampled-data law.
     iters : int, default 4

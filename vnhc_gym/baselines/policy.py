@@ -14,7 +14,7 @@ Array = NDArray[np.float64]
 
 
 def task_of(env: Any) -> Any:
-    """The configured :class:`~vnhc_gym.tasks.base.Task` of a vnhc_gym environment (single, wrapped or
+    """The configured [`Task`][vnhc_gym.tasks.base.Task] of a vnhc_gym environment (single, wrapped or
     vector), or ``TypeError``."""
     obj = env
     for _ in range(64):
@@ -42,10 +42,11 @@ def spaces_of(env: Any) -> tuple[gym.Space, gym.Space]:
 class Policy:
     """A policy with Stable-Baselines3's ``predict`` interface, on one observation or a batch.
 
-    Subclasses set ``obs_dim``, ``act_dim`` and ``name`` and implement :meth:`act` (a batch of
+    Subclasses set ``obs_dim``, ``act_dim`` and ``name`` and implement `act` (a batch of
     observations ``(n, d)`` to actions ``(n, m)`` in ``[-1, 1]``).  Stateful ones also implement
-    :meth:`reset_rows` (called for the rows where a new episode starts) and :meth:`applied` (told
-    the action the environment really received, when another policy changed it).
+    [`reset_rows`][vnhc_gym.baselines.Policy.reset_rows] (called for the rows where a new episode
+    starts) and [`applied`][vnhc_gym.baselines.Policy.applied] (told the action the environment
+    really received, when another policy changed it).
     """
 
     obs_dim: int
@@ -71,10 +72,11 @@ class Policy:
         """Forget every episode (stateless policies: nothing to do)."""
 
     def applied(self, action: ArrayLike) -> None:
-        """The actions the environment received for the rows of the last :meth:`predict` (shape ``(m,)``
-        or ``(n, m)``, in ``[-1, 1]``), when they differ from the predicted ones: a residual added to
-        them, a wrapper clipped them.  A policy that predicts with the force it applied (an
-        observer, an adaptive law) must predict with these.  Stateless policies: nothing to do."""
+        """The actions the environment received for the rows of the last
+        [`predict`][vnhc_gym.baselines.Policy.predict] (shape ``(m,)`` or ``(n, m)``, in
+        ``[-1, 1]``), when they differ from the predicted ones: a residual added to them, a wrapper
+        clipped them.  A policy that predicts with the force it applied (an observer, an adaptive
+        law) must predict with these.  Stateless policies: nothing to do."""
 
     def predict(self, observation: ArrayLike, state: Any = None, episode_start: ArrayLike | None = None,
                 deterministic: bool = True) -> tuple[NDArray[np.float32], None]:

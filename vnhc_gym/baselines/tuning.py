@@ -1,14 +1,14 @@
 """The classical baselines of the comparison, and how their settings are chosen: on validation
 episodes only (seeds from 5 000), never on the test episodes (seeds from 10 000).
 
-``CLASSICAL`` names each baseline with its class and its grid of settings; :func:`tune` evaluates
+``CLASSICAL`` names each baseline with its class and its grid of settings; [`tune`][vnhc_gym.baselines.tune] evaluates
 every setting on validation episodes and keeps the one with the highest mean ``score`` (the return
 over the fixed horizon per step, a terminated episode's remaining steps counting 0:
-:mod:`vnhc_gym.evaluation.metrics`), so a setting that fails some episodes cannot win on how well it
+`vnhc_gym.evaluation.metrics`), so a setting that fails some episodes cannot win on how well it
 held the constraint before failing.
 
 ``REFERENCE`` holds the headroom reference ``oracle``, tuned the same way: the sampled-data law on
-the environment's true state and parameters (:mod:`vnhc_gym.baselines.oracle`).  It is not a
+the environment's true state and parameters (`vnhc_gym.baselines.oracle`).  It is not a
 controller one could field, and never a cell's best classical baseline; it says how far that
 baseline is from what the law attains with perfect information.
 """
@@ -57,7 +57,7 @@ def make_classical(name: str, env: Any, **kwargs: Any) -> Any:
 
 def evaluate_classical(name: str, settings: dict[str, Any], env_id: str, scenario: str, n_episodes: int, seed: int,
                        **env_kwargs: Any) -> Any:
-    """:func:`~vnhc_gym.evaluation.evaluate` of the baseline ``name`` with ``settings`` (built on the
+    """[`evaluate`][vnhc_gym.evaluation.evaluate] of the baseline ``name`` with ``settings`` (built on the
     evaluation's own environment)."""
     from vnhc_gym.evaluation import evaluate
 
@@ -80,8 +80,9 @@ def tune(name: str, env_id: str, scenario: str, n_episodes: int = 10, seed: int 
     setting's validation score.
 
     Returns ``(best_kwargs, table)``; ``table`` rows hold the settings, ``score`` (the mean score over
-    the validation episodes, :func:`selection_score`) and ``success`` (the fraction of them that
-    reached the time limit).  The highest score wins; the first setting of the grid wins a tie.
+    the validation episodes, [`selection_score`][vnhc_gym.baselines.tuning.selection_score]) and
+    ``success`` (the fraction of them that reached the time limit).  The highest score wins; the
+    first setting of the grid wins a tie.
     """
     from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED
 

@@ -1,9 +1,10 @@
 """Environments built from a task definition: the single and vector envs, their configuration,
 episode kernels and runtime.  The environment classes themselves live in the task modules
-(:mod:`vnhc_gym.tasks`)."""
+(`vnhc_gym.tasks`)."""
 
-from vnhc_gym.envs.config import SCENARIOS, EnvConfig
+from vnhc_gym.envs.config import SCENARIOS, EnvConfig, TaskOptions, option
 from vnhc_gym.envs.env import ConstraintEnv
-from vnhc_gym.envs.vector import MAX_EPISODE_STEPS, ConstraintVectorEnv
+from vnhc_gym.envs.vector import MAX_EPISODE_STEPS, ConstraintVectorEnv, vector_env_class
 
-__all__ = ["ConstraintEnv", "ConstraintVectorEnv", "EnvConfig", "MAX_EPISODE_STEPS", "SCENARIOS"]
+__all__ = ["ConstraintEnv", "ConstraintVectorEnv", "EnvConfig", "MAX_EPISODE_STEPS", "SCENARIOS", "TaskOptions",
+           "option", "vector_env_class"]

@@ -1,8 +1,8 @@
 """The keyword arguments every environment shares, its scenarios and versions, and their checks.
 
-An environment's constructor splits its keyword arguments into an :class:`EnvConfig` (the fields
+An environment's constructor splits its keyword arguments into an [`EnvConfig`][vnhc_gym.envs.EnvConfig] (the fields
 below, the same for every task) and the task's own options (``current``, ``n_agents``, ...).  A
-scenario is a named set of :class:`EnvConfig` overrides; explicit keyword arguments win over it.
+scenario is a named set of [`EnvConfig`][vnhc_gym.envs.EnvConfig] overrides; explicit keyword arguments win over it.
 """
 
 from __future__ import annotations
@@ -10,14 +10,15 @@ from __future__ import annotations
 import math
 import numbers
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, replace
-from typing import Any
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["EnvConfig", "FLOAT32_MAX", "SCENARIOS", "check_integer", "check_number", "check_optional", "configure"]
+__all__ = ["EnvConfig", "FLOAT32_MAX", "SCENARIOS", "TaskOptions", "check_choice", "check_integer", "check_number",
+           "check_optional", "configure", "option"]
 
-#: Scenario name -> overrides of :class:`EnvConfig` fields (documented in each env's card).
+#: Scenario name -> overrides of [`EnvConfig`][vnhc_gym.envs.EnvConfig] fields (documented in each env's card).
 SCENARIOS: dict[str, dict[str, Any]] = {
     "nominal": {},
     "saturated": {"force_bound_scale": 0.05},
@@ -37,7 +38,7 @@ REWARDS = ("raw", "bounded")
 
 
 def check_optional(name: str, value: Any, **bounds: Any) -> float | None:
-    """:func:`check_number` that also accepts ``None`` (and returns it)."""
+    """`check_number` that also accepts ``None`` (and returns it)."""
     return None if value is None else check_number(name, value, allow_none=True, **bounds)
 
 
@@ -45,7 +46,7 @@ def check_number(name: str, value: Any, *, low: float | None = None, high: float
                  low_open: bool = False, allow_none: bool = False) -> float:
     """``value`` as a float if it is a finite real number in the given range, else a ``ValueError``
     (``TypeError`` for something that is not a number) naming ``name``, the value and what is
-    expected (``allow_none`` only changes the message; use :func:`check_optional` to accept None)."""
+    expected (``allow_none`` only changes the message; use `check_optional` to accept None)."""
     bounds = []
     if low is not None:
         bounds.append(f"{'>' if low_open else '>='} {low:g}")
@@ -153,9 +154,91 @@ class EnvConfig:
 CONFIG_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(EnvConfig))
 
 
-def configure(scenario: Any, kwargs: Mapping[str, Any], options: Mapping[str, Any],
-              defaults: Mapping[str, Any] | None = None) -> tuple[EnvConfig, dict[str, Any]]:
-    """Split an environment's keyword arguments into a checked :class:`EnvConfig` and task options.
+def check_choice(name: str, value: Any, choices: Any, allow_none: bool = False) -> Any:
+    """``value`` if it is one of ``choices`` (or ``None`` with ``allow_none``), else a ``ValueError``
+    naming ``name``, the value and the valid choices."""
+    if allow_none and value is None:
+        return None
+    valid = sorted(choices)
+    try:
+        ok = isinstance(value, str) and value in valid if all(isinstance(c, str) for c in valid) else value in valid
+    except TypeError:
+        ok = False
+    if not ok:
+        raise ValueError(f"{name} must be one of {valid}{' or None' if allow_none else ''}, got {value!r}")
+    return value
+
+
+def option(default: Any, doc: str, *, low: float | None = None, high: float | None = None, low_open: bool = False,
+           integer: bool = False, choices: Any = None, allow_none: bool = False) -> Any:
+    """One field of a task's [`TaskOptions`][vnhc_gym.envs.TaskOptions]: its default, what it means
+    (with units), and how it is checked.
+
+    ``choices`` checks membership (`check_choice`), ``integer`` an integer in ``[low, high]``
+    (`check_integer`), and otherwise ``low``/``high``/``low_open`` bound a finite number
+    (`check_number`); ``allow_none`` also accepts ``None``.  A field with none of these is
+    the task's to check (a list or a dict, say): its constructor does it with the same helpers.
+    """
+    check: dict[str, Any] | None = None
+    if choices is not None:
+        check = {"kind": "choice", "choices": tuple(choices), "allow_none": allow_none}
+    elif integer:
+        check = {"kind": "integer", "low": int(low if low is not None else 0), "high": high}
+    elif low is not None or high is not None:
+        check = {"kind": "number", "low": low, "high": high, "low_open": low_open, "allow_none": allow_none}
+    return field(default=default, metadata={"doc": doc, "check": check})
+
+
+_Options = TypeVar("_Options", bound="TaskOptions")
+
+
+@dataclass(frozen=True)
+class TaskOptions:
+    """The keyword arguments of one task, declared once: subclass it as a frozen dataclass whose
+    fields are made with [`option`][vnhc_gym.envs.option].
+
+    The environment's constructor takes these names besides [`EnvConfig`][vnhc_gym.envs.EnvConfig]'s, fills in the
+    defaults, checks every declared field by name
+    ([`checked`][vnhc_gym.envs.config.TaskOptions.checked]) and hands the result to the task's
+    constructor; the test suite holds the env card's Arguments table to the same fields.
+    """
+
+    def checked(self: _Options) -> _Options:
+        """A copy with every field that declares a check checked and converted (``ValueError`` or
+        ``TypeError`` naming the field)."""
+        changes: dict[str, Any] = {}
+        for f in fields(self):
+            check = f.metadata.get("check")
+            value = getattr(self, f.name)
+            if check is None:
+                continue
+            kind = check["kind"]
+            if kind == "choice":
+                changes[f.name] = check_choice(f.name, value, check["choices"], check["allow_none"])
+            elif kind == "integer":
+                changes[f.name] = check_integer(f.name, value, low=check["low"], high=check["high"])
+            elif check["allow_none"]:
+                changes[f.name] = check_optional(f.name, value, low=check["low"], high=check["high"],
+                                                 low_open=check["low_open"])
+            else:
+                changes[f.name] = check_number(f.name, value, low=check["low"], high=check["high"],
+                                               low_open=check["low_open"])
+        return replace(self, **changes)
+
+    @classmethod
+    def defaults(cls) -> dict[str, Any]:
+        """Every option's name and default."""
+        return {f.name: f.default for f in fields(cls)}
+
+    @classmethod
+    def docs(cls) -> dict[str, str]:
+        """Every option's name and meaning (what the env card's Arguments table says)."""
+        return {f.name: str(f.metadata.get("doc", "")) for f in fields(cls)}
+
+
+def configure(scenario: Any, kwargs: Mapping[str, Any], options: type[_Options],
+              defaults: Mapping[str, Any] | None = None) -> tuple[EnvConfig, _Options]:
+    """Split an environment's keyword arguments into a checked [`EnvConfig`][vnhc_gym.envs.EnvConfig] and task options.
 
     Parameters
     ----------
@@ -163,23 +246,24 @@ def configure(scenario: Any, kwargs: Mapping[str, Any], options: Mapping[str, An
         A name of ``SCENARIOS``; its overrides come first, then ``kwargs``.
     kwargs : mapping
         The constructor's keyword arguments.
-    options : mapping
-        The task's own option names and their defaults.
+    options : type of TaskOptions
+        The task's own options.
     defaults : mapping, optional
-        The version's defaults of :class:`EnvConfig` fields (e.g. the reward of ``-v1``), applied
+        The version's defaults of [`EnvConfig`][vnhc_gym.envs.EnvConfig] fields (e.g. the reward of ``-v1``), applied
         before the scenario.
 
     Returns
     -------
     (config, task_options)
-        ``task_options`` holds every name of ``options``, with the caller's value or the default.
+        ``task_options`` is an ``options`` instance with the caller's values or the defaults, checked.
     """
     if not isinstance(scenario, str) or scenario not in SCENARIOS:
         raise ValueError(f"scenario must be one of {sorted(SCENARIOS)}, got {scenario!r}")
-    unknown = sorted(k for k in kwargs if k not in CONFIG_FIELDS and k not in options)
+    names = options.defaults()
+    unknown = sorted(k for k in kwargs if k not in CONFIG_FIELDS and k not in names)
     if unknown:
         raise ValueError(f"unknown keyword argument(s) {unknown}; valid: "
-                         f"{sorted(['scenario', 'render_mode', *CONFIG_FIELDS, *options])}")
+                         f"{sorted(['scenario', 'render_mode', *CONFIG_FIELDS, *names])}")
     own = {k: v for k, v in kwargs.items() if k in CONFIG_FIELDS}
     config = replace(EnvConfig(), **{**dict(defaults or {}), **SCENARIOS[scenario], **own}).checked()
-    return config, {k: kwargs.get(k, v) for k, v in options.items()}
+    return config, options(**{k: v for k, v in kwargs.items() if k in names}).checked()

@@ -1,7 +1,7 @@
 """The single environment of any task: Gymnasium's ``reset``/``step`` around a batch of one episode.
 
-Each task module subclasses :class:`ConstraintEnv` once, with its card as the docstring and its
-:class:`~vnhc_gym.tasks.base.Task` as ``task_class``; everything else is here.
+Each task module subclasses [`ConstraintEnv`][vnhc_gym.envs.ConstraintEnv] once, with its card as the docstring and its
+[`Task`][vnhc_gym.tasks.base.Task] as ``task_class``; everything else is here.
 """
 
 from __future__ import annotations
@@ -48,10 +48,10 @@ class ConstraintEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     Parameters
     ----------
     scenario : str
-        A name of :data:`vnhc_gym.envs.config.SCENARIOS`.
+        A name of [`vnhc_gym.envs.config.SCENARIOS`][vnhc_gym.envs.config.SCENARIOS].
     render_mode : {"rgb_array", "human"} or None
     **kwargs
-        :class:`~vnhc_gym.envs.config.EnvConfig` fields and the task's own options.
+        [`EnvConfig`][vnhc_gym.envs.config.EnvConfig] fields and the task's own options.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 20}  # noqa: RUF012 (Gymnasium's API)
@@ -60,10 +60,11 @@ class ConstraintEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     def __init__(self, scenario: str = "nominal", render_mode: str | None = None, **kwargs: Any) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
-        config, options = configure(scenario, kwargs, self.task_class.options)
+        self.task_class.check_definition()
+        config, options = configure(scenario, kwargs, self.task_class.Options)
         self.scenario = scenario
         self.config = config
-        self.task = self.task_class(config, **options)
+        self.task = self.task_class(config, options)
         self.batch = Batch(self.task, 1)
         self.render_mode = render_mode
         self._renderer: Any = None
@@ -101,11 +102,26 @@ class ConstraintEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'.")
             return None
-        return self._draw(0)
+        return self._render_frame(0)
 
-    def _draw(self, row: int) -> NDArray[np.uint8] | None:
-        """Draw row ``row`` of the batch (the task's env class knows how)."""
-        raise NotImplementedError
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        from vnhc_gym.tasks.base import Task  # here: the task modules import this one
+
+        task = cls.__dict__.get("task_class")
+        if task is not None and task.scene is Task.scene and cls._render_frame is ConstraintEnv._render_frame:
+            cls.metadata = {**cls.metadata, "render_modes": []}  # a task with no picture renders nothing
+
+    def _render_frame(self, row: int) -> NDArray[np.uint8] | None:
+        """Render row ``row`` of the batch: the task's [`scene`][vnhc_gym.tasks.base.Task.scene], drawn
+        by the planar renderer."""
+        from vnhc_gym.envs.rendering import PlanarRenderer
+
+        if self._renderer is None:
+            self._renderer = PlanarRenderer(str(self.render_mode), self.metadata["render_fps"],
+                                            caption=type(self).__name__)
+        buf = self.batch.buf
+        return self._renderer.draw(self.task.scene(buf.state[row], buf.phi[row], buf.params_true[row]))
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()

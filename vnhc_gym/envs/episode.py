@@ -1,29 +1,33 @@
 """What a step and a reset do to one episode, for every task: actions, impulses, reward, start.
 
-An episode is row ``r`` of the arrays in :class:`Buffers`; the kernels here are called by
-the generated step and reset kernels (:mod:`vnhc_gym.envs._template`) around the task's own
-``draw`` and ``observe``.  The arrays and scalars travel as two named bundles, :class:`Buffers`
-and :class:`StepConfig`, so every argument can be followed by name from an environment's
-constructor to the kernel that reads it.
+An episode is row ``r`` of the arrays in [`Buffers`][vnhc_gym.envs.episode.Buffers]; the kernels here are called by
+the generated step and reset kernels (`vnhc_gym.envs._step_template`) around the task's own
+``draw`` and ``observe``.  The arrays and scalars travel as two named bundles,
+[`Buffers`][vnhc_gym.envs.episode.Buffers] and [`StepConfig`][vnhc_gym.envs.episode.StepConfig], so
+every argument can be followed by name from an environment's constructor to the kernel that reads
+it.
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numba import njit
 
-from vnhc_gym.kernels import normal_pair, uniform
+from vnhc_gym.mechanics import FEEDBACK_MODES
+from vnhc_gym.rng import normal_pair, uniform
 
-__all__ = ["Buffers", "StepConfig", "STATUS_OK", "STATUS_NONFINITE", "TASK_STATUS", "accept_actions",
-           "finish_rows", "kick_row", "start_row"]
+if TYPE_CHECKING:
+    from vnhc_gym.tasks.base import Task
+
+__all__ = ["Buffers", "StepConfig", "STATUS_OK", "STATUS_NONFINITE", "accept_actions", "finish_rows", "kick_row",
+           "start_row", "step_config"]
 
 STATUS_OK = 0
 STATUS_NONFINITE = 1  #: the state (or phi) was not finite: the row kept its last finite state
-#: First status code of a task's own termination reasons (``Task.reasons[0]`` has this code).
-TASK_STATUS = 2
+# A task's termination code c >= 1 (what its ``observe`` returns) is stored as status 1 + c.
 
 
 class Buffers(NamedTuple):
@@ -91,6 +95,52 @@ class StepConfig(NamedTuple):
     impulse_prob: float  #: probability per step of a velocity impulse
     impulse_scale: float  #: std of an impulse's velocity change
     impulse_mask: np.ndarray  #: (n,) weights of the velocity entries impulses kick (0 = never)
+    nominal: np.ndarray  #: (n_params,) the task's nominal parameters (each episode starts from them)
+    mismatch_mask: np.ndarray  #: (n_params,) bool: the parameters the mismatch perturbs (``Task.uncertain``)
+    mismatch: float  #: relative half-width of the mismatch (``param_mismatch``)
+    phi_sf_scale: float  #: the scale-free phi is phi / phi_sf_scale unless the task's ``observe`` says otherwise
+    angles: np.ndarray  #: (k,) intp: the coordinates that are angles (kept in the inline sine's range)
+    limit_index: np.ndarray  #: (L,) intp: state entries with a termination bound (``Task.limits``)
+    limit_bound: np.ndarray  #: (L,) their bounds: the episode ends when ``|state[index]| > bound``
+    limit_code: np.ndarray  #: (L,) int64: the termination code of each bound
+
+
+def step_config(task: Task, feedback: str = "open", gains: Any = 1.0) -> StepConfig:
+    """The step's named scalars, from the task's configuration and its declared defaults.
+
+    Parameters
+    ----------
+    task : Task
+        The configured task (its ``config``, force bounds, nominal parameters and declarations).
+    feedback : {"open", "continuous", "sampled"}
+        The in-loop law of `vnhc_gym.envs.runtime.Batch.set_feedback`.
+    gains : float or array_like
+        The in-loop law's gains (finite, >= 0), broadcast to the model's number of gains.
+    """
+    c = task.config
+    model = task.model
+    if feedback not in FEEDBACK_MODES:
+        raise ValueError(f"feedback must be one of {sorted(FEEDBACK_MODES)}, got {feedback!r}")
+    k = np.broadcast_to(np.asarray(gains, dtype=np.float64), (model.n_gains,)).copy()
+    if not (np.all(np.isfinite(k)) and np.all(k >= 0)):
+        raise ValueError(f"gains must be finite and >= 0, got {gains!r}")
+    bound = task.force_bound
+    names = model.param_names
+    return StepConfig(
+        dt=c.dt, substeps=c.substeps, bound=bound, lo=-bound, hi=bound.copy(), mode=FEEDBACK_MODES[feedback],
+        gains=k, singular_tol=model.singular_tol, bounded=c.reward == "bounded", phi_scale=c.phi_scale,
+        reward_sigma=task.reward_sigma if c.reward_sigma is None else c.reward_sigma,
+        action_cost=c.action_cost, reward_clip=c.reward_clip, obs_noise=c.obs_noise, obs_clip=c.obs_clip,
+        impulse_prob=c.impulse_prob,
+        impulse_scale=task.default_impulse_scale if c.impulse_scale is None else c.impulse_scale,
+        impulse_mask=np.asarray(task.impulse_mask, dtype=np.float64),
+        nominal=np.asarray(task.nominal, dtype=np.float64),
+        mismatch_mask=np.array([n in task.uncertain for n in names], dtype=np.bool_),
+        mismatch=c.param_mismatch, phi_sf_scale=float(task.phi_sf_scale),
+        angles=np.asarray(task.angles, dtype=np.intp),
+        limit_index=np.array([i for _, i, _ in task.limits], dtype=np.intp),
+        limit_bound=np.array([b for _, _, b in task.limits], dtype=np.float64),
+        limit_code=np.array([task.reason_codes[r] for r, _, _ in task.limits], dtype=np.int64))
 
 
 @njit(cache=True)

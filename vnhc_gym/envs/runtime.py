@@ -1,6 +1,6 @@
 """A batch of episodes of one task as arrays, and the compiled kernels that reset and step it.
 
-:class:`Batch` is what both environment classes run on: a single environment is a batch of one,
+`Batch` is what both environment classes run on: a single environment is a batch of one,
 a native vector environment a batch of ``num_envs``.  Both therefore run the same compiled code,
 row for row, and a vector environment equals ``num_envs`` single ones seeded alike, bit for bit.
 """
@@ -15,20 +15,20 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from vnhc_gym import kernels as _random_kernels
+from vnhc_gym import rng as _random_kernels
 from vnhc_gym.envs import episode
-from vnhc_gym.envs.episode import STATUS_NONFINITE, Buffers, accept_actions
-from vnhc_gym.kernels import entropy_states, seed_states
-from vnhc_gym.mechanics import kernels as _mechanics_kernels
+from vnhc_gym.envs.episode import STATUS_NONFINITE, Buffers, accept_actions, step_config
+from vnhc_gym.mechanics import numerics as _mechanics_kernels
 from vnhc_gym.mechanics.cache import load_module
 from vnhc_gym.mechanics.codegen import fill_template, module_key
+from vnhc_gym.rng import entropy_states, seed_states
 
 if TYPE_CHECKING:
     from vnhc_gym.tasks.base import Task
 
 __all__ = ["Batch", "step_module"]
 
-_TEMPLATE = Path(__file__).with_name("_template.py")
+_TEMPLATE = Path(__file__).with_name("_step_template.py")
 
 
 def step_module(task: Task) -> ModuleType:
@@ -37,27 +37,28 @@ def step_module(task: Task) -> ModuleType:
     The key hashes the system module's name (itself a hash of the system), the task module's and
     the episode kernels' text, and the template, so an edit of any of them compiles anew.
     """
-    system = task.model.kernels.__name__
+    system = task.model.compiled.__name__
     hooks = type(task).__module__
     hooks_file = sys.modules[hooks].__file__ or ""
     sources: list[str | Path] = [_TEMPLATE, hooks_file, episode.__file__ or "", _random_kernels.__file__ or "",
                                  _mechanics_kernels.__file__ or ""]
     key = module_key(["step", system, hooks], sources)
-    block = (f"from {hooks} import DRAW_STAGES, draw, observe\n"
-             f"from {system} import N, _aux, _phi, rk4_held_row, rk4_row, work\n\n")
+    block = (f"from {hooks} import draw, observe\n"
+             f"from {system} import N, _aux, _phi, rk4_held_row, rk4_row, work\n\n"
+             f"DRAW_STAGES = {int(task.draw_stages)}\nMISMATCH_STAGE = {int(task.mismatch_stage)}\n")
     return load_module(key, lambda: fill_template(_TEMPLATE, "bindings", block, f"task {task.name!r}"),
                        label=f"the {task.name} environment", required=("step", "step_feedback", "reset"))
 
 
-def compiled(dispatcher: Any, *args: Any) -> Any:
+def entry_point(dispatcher: Any, *args: Any) -> Any:
     """The compiled entry point of a numba ``dispatcher`` for the types of ``args`` (compiling it if
     needed).
 
     Why: a call through the dispatcher finds the argument types first, which costs about 0.1 us
-    per array of a named bundle (2-3 us a step for :class:`Buffers`, more than the physics of a
-    single environment).  A batch's bundles keep their types for its whole life, so it resolves
-    the entry point once and calls it directly.  Only call the result with arguments of the same
-    types.
+    per array of a named bundle (2-3 us a step for [`Buffers`][vnhc_gym.envs.episode.Buffers], more
+    than the physics of a single environment).  A batch's bundles keep their types for its whole
+    life, so it resolves the entry point once and calls it directly.  Only call the result with
+    arguments of the same types.
     """
     types = tuple(dispatcher.typeof_pyval(a) for a in args)
     if types not in dispatcher.overloads:
@@ -71,7 +72,7 @@ class Batch:
     Parameters
     ----------
     task : Task
-        The configured task; its ``model``, ``nominal``, ``args`` and ``step_config()`` are read once.
+        The configured task; its ``model``, ``nominal``, ``args`` and step configuration are read once.
     n : int
         Number of episodes (rows).
 
@@ -91,7 +92,7 @@ class Batch:
                                     task.obs_dim)
         self.buf.params_true[:] = task.nominal
         self.buf.params_nominal[:] = task.nominal
-        self.cfg = task.step_config()
+        self.cfg = step_config(task)
         self.feedback = "open"
         self.seeded = np.zeros(self.n, dtype=np.bool_)
         self._reasons = np.array(task.all_reasons, dtype=object)
@@ -99,18 +100,18 @@ class Batch:
 
     def _bind(self) -> None:
         """Load the task's kernels and resolve their entry points for this batch's bundles."""
-        self.kernels = k = step_module(self.task)
+        self.step_kernels = k = step_module(self.task)
         rows = np.zeros(1, dtype=np.intp)
-        self._step = compiled(k.step, rows, self.buf, self.cfg, self.task.args)
-        self._reset = compiled(k.reset, rows, self.buf, self.cfg, self.task.args)
-        self._act = compiled(accept_actions, rows, np.zeros((1, self.task.act_dim)), self.cfg.bound, self.buf.force,
+        self._step = entry_point(k.step, rows, self.buf, self.cfg, self.task.args)
+        self._reset = entry_point(k.reset, rows, self.buf, self.cfg, self.task.args)
+        self._act = entry_point(accept_actions, rows, np.zeros((1, self.task.act_dim)), self.cfg.bound, self.buf.force,
                              self.buf.action)
         self._act32: Any = None  # the float32 variant, resolved on the first float32 actions
         self._step_feedback: Any = None  # the step with the law in the loop, resolved on first use
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        for name in ("kernels", "_step", "_step_feedback", "_reset", "_act", "_act32"):
+        for name in ("step_kernels", "_step", "_step_feedback", "_reset", "_act", "_act32"):
             state[name] = None  # compiled code: loaded again from the cache
         return state
 
@@ -141,7 +142,8 @@ class Batch:
         the index of the first non-finite row (nothing stored), or -1."""
         if actions.dtype == np.float32 and actions.flags.c_contiguous:
             if self._act32 is None:
-                self._act32 = compiled(accept_actions, rows, actions, self.cfg.bound, self.buf.force, self.buf.action)
+                self._act32 = entry_point(accept_actions, rows, actions, self.cfg.bound, self.buf.force,
+                                          self.buf.action)
             return int(self._act32(rows, actions, self.cfg.bound, self.buf.force, self.buf.action))
         a = np.ascontiguousarray(actions, dtype=np.float64)  # the entry point takes exactly this type
         return int(self._act(rows, a, self.cfg.bound, self.buf.force, self.buf.action))
@@ -152,7 +154,7 @@ class Batch:
             self._step(rows, self.buf, self.cfg, self.task.args)
             return
         if self._step_feedback is None:
-            self._step_feedback = compiled(self.kernels.step_feedback, rows, self.buf, self.cfg, self.task.args)
+            self._step_feedback = entry_point(self.step_kernels.step_feedback, rows, self.buf, self.cfg, self.task.args)
         self._step_feedback(rows, self.buf, self.cfg, self.task.args)
 
     def set_feedback(self, feedback: str = "open", gains: Any = 1.0) -> None:
@@ -162,7 +164,7 @@ class Batch:
         every RK4 stage, ``"sampled"`` once per control period; ``"open"`` (default) turns it off.
         The total force is clipped to the force bound at every stage.
         """
-        self.cfg = self.task.step_config(feedback, gains)
+        self.cfg = step_config(self.task, feedback, gains)
         self.feedback = feedback
 
     # ------------------------------------------------------------------ infos
@@ -186,7 +188,7 @@ class Batch:
         return info
 
     def batch_info(self, rows: NDArray[np.bool_] | None = None) -> dict[str, Any]:
-        """The arrays of :meth:`info` stacked over all rows, in Gymnasium's vector convention: each key
+        """The arrays of `info` stacked over all rows, in Gymnasium's vector convention: each key
         ``k`` with a mask ``_k`` (``rows``, default all; other rows are zero / None there)."""
         buf = self.buf
         n = self.n

@@ -1,16 +1,18 @@
 """The native vector environment of any task: ``num_envs`` episodes in one batch, one kernel call a step.
 
 ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point", **kwargs)`` builds the
-task's subclass of :class:`ConstraintVectorEnv`.  It reproduces ``gymnasium.vector.SyncVectorEnv``
-over ``N`` single environments made with ``gym.make(id, **kwargs)`` exactly: observations, rewards,
-terminations, truncations and infos (Gymnasium's dict-of-arrays convention with ``_key`` masks), in
-``AutoresetMode.NEXT_STEP`` (default), ``SAME_STEP`` (``final_obs`` / ``final_info``) and
-``DISABLED`` (reset finished sub-envs yourself with ``reset(options={"reset_mask": mask})``).
-``reset(seed=s)`` seeds sub-env ``i`` with ``s + i`` as ``SyncVectorEnv`` does.
+task's subclass of [`ConstraintVectorEnv`][vnhc_gym.envs.ConstraintVectorEnv].  It reproduces
+``gymnasium.vector.SyncVectorEnv`` over ``N`` single environments made with
+``gym.make(id, **kwargs)`` exactly: observations, rewards, terminations, truncations and infos
+(Gymnasium's dict-of-arrays convention with ``_key`` masks), in ``AutoresetMode.NEXT_STEP``
+(default), ``SAME_STEP`` (``final_obs`` / ``final_info``) and ``DISABLED`` (reset finished sub-envs
+yourself with ``reset(options={"reset_mask": mask})``).  ``reset(seed=s)`` seeds sub-env ``i`` with
+``s + i`` as ``SyncVectorEnv`` does.
 """
 
 from __future__ import annotations
 
+import sys
 from typing import Any, ClassVar
 
 import numpy as np
@@ -23,7 +25,7 @@ from vnhc_gym.envs.config import check_integer
 from vnhc_gym.envs.env import ConstraintEnv, check_action_array
 from vnhc_gym.envs.runtime import Batch
 
-__all__ = ["ConstraintVectorEnv", "MAX_EPISODE_STEPS"]
+__all__ = ["ConstraintVectorEnv", "MAX_EPISODE_STEPS", "vector_env_class"]
 
 #: Episode length of the registered environments (400 steps of 0.05 s = 20 s).
 MAX_EPISODE_STEPS = 400
@@ -209,7 +211,7 @@ class ConstraintVectorEnv(VectorEnv):
         proto = self._proto
         if self.render_mode != "rgb_array":
             return proto.render()  # type: ignore[return-value]
-        frames = [proto._draw(i) for i in range(self.num_envs)]
+        frames = [proto._render_frame(i) for i in range(self.num_envs)]
         return tuple(f for f in frames if f is not None)
 
     def close_extras(self, **kwargs: Any) -> None:
@@ -258,3 +260,22 @@ class ConstraintVectorEnv(VectorEnv):
         mask[rows] = True
         infos["params"] = params
         infos["_params"] = mask
+
+
+def vector_env_class(env_class: type[ConstraintEnv]) -> type[ConstraintVectorEnv]:
+    """The native vector version of a task's environment class (``FooEnv`` -> ``FooVectorEnv``).
+
+    A task module defines its single environment only; this makes the vector class once and puts it
+    in that module under its name (so it pickles and imports like a class written there), unless the
+    module already defines one.
+    """
+    module = sys.modules[env_class.__module__]
+    name = env_class.__name__.removesuffix("Env") + "VectorEnv"
+    existing = getattr(module, name, None)
+    if isinstance(existing, type) and issubclass(existing, ConstraintVectorEnv) and existing.env_class is env_class:
+        return existing
+    cls = type(name, (ConstraintVectorEnv,), {
+        "env_class": env_class, "__module__": env_class.__module__,
+        "__doc__": f"The native vector version of :class:`{env_class.__name__}`: ``num_envs`` episodes in one batch."})
+    setattr(module, name, cls)
+    return cls

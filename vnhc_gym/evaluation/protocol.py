@@ -1,12 +1,13 @@
 """The evaluation protocol: seeded episodes of a registered environment, run as one vector batch.
 
-:func:`evaluate` runs a policy (anything with Stable-Baselines3's ``predict``: the baselines, an SB3
-model, a loaded agent) on ``n_episodes`` episodes, episode ``i`` seeded ``seed + i``, and returns an
-:class:`EvalResult` with the per-episode metrics of :mod:`vnhc_gym.evaluation.metrics`.  Episodes
-last ``max_time`` seconds whatever the scenario's control period.  The episodes of one call are
-the sub-environments of one native vector environment, so the policy is asked for all of their
-actions at once; held-out seeds are the caller's choice (the project uses 10 000 and up for tests,
-5 000 and up for validation, and trains on small seeds).
+[`evaluate`][vnhc_gym.evaluation.evaluate] runs a policy (anything with Stable-Baselines3's
+``predict``: the baselines, an SB3 model, a loaded agent) on ``n_episodes`` episodes, episode ``i``
+seeded ``seed + i``, and returns an [`EvalResult`][vnhc_gym.evaluation.EvalResult] with the
+per-episode metrics of `vnhc_gym.evaluation.metrics`.  Episodes last ``max_time`` seconds whatever
+the scenario's control period.  The episodes of one call are the sub-environments of one native
+vector environment, so the policy is asked for all of their actions at once; held-out seeds are the
+caller's choice (the project uses 10 000 and up for tests, 5 000 and up for validation, and trains
+on small seeds).
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ AGGREGATE = {"score": "mean", "success": "mean", "terminated": "mean", "horizon_
 
 @dataclass
 class EvalResult:
-    """The outcome of :func:`evaluate`.
+    """The outcome of [`evaluate`][vnhc_gym.evaluation.evaluate].
 
     Attributes
     ----------
@@ -71,7 +72,7 @@ class EvalResult:
         return int(self.abs_phi.shape[1])
 
     def summary(self, reps: int = 2000) -> dict[str, stats.Interval]:
-        """Each metric's aggregate over episodes (:data:`AGGREGATE`) with its 95 % bootstrap interval."""
+        """Each metric's aggregate over episodes (`AGGREGATE`) with its 95 % bootstrap interval."""
         return {name: stats.interval_estimates({"x": values[:, None]}, metric=AGGREGATE.get(name, "iqm"),
                                                reps=reps)["x"]
                 for name, values in self.metrics.items()}

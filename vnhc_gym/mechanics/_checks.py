@@ -1,8 +1,8 @@
 """Checks of numeric parameters and states shared by the symbolic and the compiled side.
 
-Plain numpy (no sympy, no numba): :class:`~vnhc_gym.mechanics.system.MechanicalSystem` checks its
-default values with :func:`check_param`, :class:`~vnhc_gym.mechanics.ConstrainedSystem` checks
-whole batches with :func:`check_param_rows` and :func:`check_state_rows`, one vectorised
+Plain numpy (no sympy, no numba): [`MechanicalSystem`][vnhc_gym.mechanics.system.MechanicalSystem] checks its
+default values with `check_param`, [`ConstrainedSystem`][vnhc_gym.mechanics.ConstrainedSystem] checks
+whole batches with `check_param_rows` and `check_state_rows`, one vectorised
 comparison per call and a search for the culprit only when one exists.
 """
 
@@ -50,7 +50,7 @@ def lower_bounds(positive: Sequence[bool]) -> NDArray[np.float64]:
 def check_param_rows(p: NDArray[np.float64], names: Sequence[str], lower: NDArray[np.float64], batched: bool,
                      what: str = "params") -> None:
     """Raise ``ValueError`` unless every entry of ``p`` (shape ``(B, n_params)``) is finite and above
-    its lower bound (``lower``, from :func:`lower_bounds`).
+    its lower bound (``lower``, from `lower_bounds`).
 
     The message names the first offending row (if ``batched``: the caller passed a batch; else
     every row is the one vector it passed), the parameter, its value and what was expected.

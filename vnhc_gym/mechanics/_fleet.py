@@ -10,7 +10,7 @@ fleet.  The shared coordinates must evolve on their own (neither the copies' coo
 controls enter their accelerations); code generation checks that.
 
 This file is a template: code generation inserts its text into the system template
-(:mod:`vnhc_gym.mechanics._template`) in place of a system's expression functions, with the import
+(`vnhc_gym.mechanics._system_template`) in place of a system's expression functions, with the import
 between the ``unit`` markers replaced by one unit module and one fleet's maps.  Imported
 as it is, it describes a fleet of two placeholder point masses.
 """
@@ -20,23 +20,23 @@ from numba import njit
 
 # isort: split
 # --- unit: begin (code generation writes the unit module's import and the fleet's maps here)
-from vnhc_gym.mechanics._template import (  # noqa: F401
+from vnhc_gym.mechanics._system_template import (  # noqa: F401
     BLOCK,
     HOLONOMIC,
 )
-from vnhc_gym.mechanics._template import NAUX as UNAUX
-from vnhc_gym.mechanics._template import NG as UNG
-from vnhc_gym.mechanics._template import NP as UNP
-from vnhc_gym.mechanics._template import M as UM
-from vnhc_gym.mechanics._template import N as UN
-from vnhc_gym.mechanics._template import _accel_at as _unit_accel_at
-from vnhc_gym.mechanics._template import _aux_at as _unit_aux_at
-from vnhc_gym.mechanics._template import _cg as _unit_cg
-from vnhc_gym.mechanics._template import _dyn as _unit_dyn
-from vnhc_gym.mechanics._template import _energy as _unit_energy
-from vnhc_gym.mechanics._template import _phi_at as _unit_phi_at
-from vnhc_gym.mechanics._template import _phi_h as _unit_phi_h
-from vnhc_gym.mechanics._template import _tn as _unit_tn
+from vnhc_gym.mechanics._system_template import NAUX as UNAUX
+from vnhc_gym.mechanics._system_template import NG as UNG
+from vnhc_gym.mechanics._system_template import NP as UNP
+from vnhc_gym.mechanics._system_template import M as UM
+from vnhc_gym.mechanics._system_template import N as UN
+from vnhc_gym.mechanics._system_template import _accel_at as _unit_accel_at
+from vnhc_gym.mechanics._system_template import _aux_at as _unit_aux_at
+from vnhc_gym.mechanics._system_template import _cg as _unit_cg
+from vnhc_gym.mechanics._system_template import _dyn as _unit_dyn
+from vnhc_gym.mechanics._system_template import _energy as _unit_energy
+from vnhc_gym.mechanics._system_template import _phi_at as _unit_phi_at
+from vnhc_gym.mechanics._system_template import _phi_h as _unit_phi_h
+from vnhc_gym.mechanics._system_template import _tn as _unit_tn
 
 NAME = "placeholder-fleet"
 R = 2  #: copies of the unit

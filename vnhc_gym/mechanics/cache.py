@@ -1,9 +1,9 @@
 """The on-disk cache of generated kernel modules: where it lives, how entries are written and checked.
 
-A generated module is a Python file ``vnhc_gen_<key>.py`` in :func:`cache_dir`; numba keeps its
+A generated module is a Python file ``vnhc_gen_<key>.py`` in `cache_dir`; numba keeps its
 machine code beside it (``__pycache__``), so a later process neither generates nor compiles again.
 The key is a hash of everything the file is made from (see
-:func:`vnhc_gym.mechanics.codegen.module_key`), so an edit of any of those sources gives a new file
+`vnhc_gym.mechanics.codegen.module_key`), so an edit of any of those sources gives a new file
 instead of a stale one.
 
 Entries are written atomically (a temporary file, then a rename) with a checksum of their text on
@@ -72,7 +72,7 @@ def cache_dir() -> Path:
     """The folder of generated modules: ``$VNHC_GYM_CACHE_DIR``, else ``~/.cache/vnhc_gym``.
 
     If that folder cannot be created or written, a per-user folder in the temporary directory is
-    used instead, with one :class:`CacheWarning` per process that says why and names
+    used instead, with one `CacheWarning` per process that says why and names
     ``VNHC_GYM_CACHE_DIR``.
     """
     configured = _configured_root()
@@ -210,7 +210,7 @@ def load_module(key: str, make_source: Callable[[], str], *, label: str,
     Parameters
     ----------
     key : str
-        Hex digest naming the module (see :func:`vnhc_gym.mechanics.codegen.module_key`).
+        Hex digest naming the module (see `vnhc_gym.mechanics.codegen.module_key`).
     make_source : callable
         Returns the module's text; called only on a cache miss (a warm start skips all symbolic
         work).

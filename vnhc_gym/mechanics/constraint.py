@@ -157,7 +157,8 @@ def derive_law(system: MechanicalSystem, constraint: Constraint) -> SymbolicLaw:
     Returns
     -------
     SymbolicLaw
-        The symbolic pieces; compile them with :class:`vnhc_gym.mechanics.ConstrainedSystem`.
+        The symbolic pieces; compile them with
+        [`vnhc_gym.mechanics.ConstrainedSystem`][vnhc_gym.mechanics.ConstrainedSystem].
 
     Raises
     ------

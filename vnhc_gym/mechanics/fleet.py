@@ -3,13 +3,13 @@
 Flocking is the example: each follower with the leader is the same two-particle system, and the
 leader falls freely whatever the followers do.  Written out for ``N`` particles, the generated code
 (and numba's compile time and memory) would grow with ``N``; as a fleet, the unit system is
-compiled once and a loop over the copies does the rest (:mod:`vnhc_gym.mechanics._fleet`).
+compiled once and a loop over the copies does the rest (`vnhc_gym.mechanics._fleet`).
 
 The fleet's law is the unit's law copy by copy: ``phi^b`` involves only copy ``b``'s coordinates,
 copy ``b``'s controls move only its own coordinates, so ``C`` is block-diagonal with the units'
 blocks and ``G`` stacks the units' ``G``.  This needs the shared coordinates to evolve on their own
 (their accelerations depend on neither the copies' coordinates nor the controls), which
-:func:`check_autonomous` verifies on the unit's symbolic law.
+`check_autonomous` verifies on the unit's symbolic law.
 """
 
 from __future__ import annotations
@@ -145,9 +145,9 @@ def _array(a: NDArray[np.generic]) -> str:
 
 def fleet_source(unit: ConstrainedSystem, layout: FleetLayout) -> str:
     """The generated module of a fleet of ``unit``: the system template with the fleet's expression
-    functions (:mod:`vnhc_gym.mechanics._fleet`) over the unit's compiled module."""
+    functions (`vnhc_gym.mechanics._fleet`) over the unit's compiled module."""
     check_autonomous(unit.symbolic, layout.own)
-    u = unit.kernels.__name__
+    u = unit.compiled.__name__
     names = ", ".join(f"{n} as U{n}" for n in ("M", "N", "NAUX", "NG", "NP"))
     block = "\n".join([
         f"from {u} import BLOCK, HOLONOMIC  # noqa: F401",
@@ -172,4 +172,4 @@ def fleet_source(unit: ConstrainedSystem, layout: FleetLayout) -> str:
         "",
     ]) + "\n"
     fleet = splice((_HERE / "_fleet.py").read_text(encoding="utf-8"), "unit", block)
-    return fill_template(_HERE / "_template.py", "system", fleet, f"fleet {layout.name!r} of {unit.name!r}")
+    return fill_template(_HERE / "_system_template.py", "system", fleet, f"fleet {layout.name!r} of {unit.name!r}")

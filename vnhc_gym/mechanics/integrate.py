@@ -1,4 +1,5 @@
-"""Fixed-step RK4 simulation of a :class:`ConstrainedSystem` over many control periods."""
+"""Fixed-step RK4 simulation of a [`ConstrainedSystem`][vnhc_gym.mechanics.ConstrainedSystem] over
+many control periods."""
 
 from __future__ import annotations
 
@@ -50,9 +51,9 @@ def simulate(model: ConstrainedSystem, state0: ArrayLike, dt: float, n_steps: in
     n_steps : int
         Number of control periods.
     feedback : {"continuous", "sampled", "open"}
-        See :meth:`ConstrainedSystem.step`.
+        See [`ConstrainedSystem.step`][vnhc_gym.mechanics.ConstrainedSystem.step].
     gains, params, u
-        As in :meth:`ConstrainedSystem.step` (``u`` is held for the whole run).
+        As in [`ConstrainedSystem.step`][vnhc_gym.mechanics.ConstrainedSystem.step] (``u`` is held for the whole run).
     record_every : int
         Record one state in every ``record_every`` periods (the last state is always kept).
     """
@@ -83,7 +84,7 @@ def simulate(model: ConstrainedSystem, state0: ArrayLike, dt: float, n_steps: in
     all_flags = np.zeros(b, dtype=np.int64)
     j = 1
     for step in range(1, n_steps + 1):
-        model.kernels.rk4(cur, p, p, uh, k, mode, lo, hi, float(dt), int(substeps), model.singular_tol, nxt, u_step,
+        model.compiled.rk4(cur, p, p, uh, k, mode, lo, hi, float(dt), int(substeps), model.singular_tol, nxt, u_step,
                           flags)
         all_flags |= flags
         cur, nxt = nxt, cur
@@ -94,8 +95,8 @@ def simulate(model: ConstrainedSystem, state0: ArrayLike, dt: float, n_steps: in
     phi = np.empty((n_rec, b, model.m))
     energy = np.empty((n_rec, b))
     for i in range(n_rec):
-        model.kernels.phi(states[i], p, phi[i])
-        model.kernels.energy(states[i], p, energy[i])
+        model.compiled.phi(states[i], p, phi[i])
+        model.compiled.energy(states[i], p, energy[i])
     t = np.asarray(rec_idx, dtype=np.float64) * dt
     if single:
         return Trajectory(t, states[:, 0], phi[:, 0], us[:, 0], energy[:, 0], all_flags[0])

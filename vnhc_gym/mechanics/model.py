@@ -1,10 +1,11 @@
 """Numeric, batched evaluation of a constrained mechanical system.
 
-:class:`ConstrainedSystem` is the public face of the core: it compiles the symbolic law once
-(cached on disk) and evaluates ``phi``, ``C``, ``G(phi)``, ``u*``, ``u_hat``, the energy and
-RK4 steps for one state (shape ``(2n,)``) or a batch (shape ``(B, 2n)``).  The public methods
-check their arguments; the environments call the compiled kernels (``self.kernels``) directly
-with preallocated buffers, like python-control's checked ``dynamics`` beside a fast ``_rhs``.
+[`ConstrainedSystem`][vnhc_gym.mechanics.ConstrainedSystem] is the public face of the core: it
+compiles the symbolic law once (cached on disk) and evaluates ``phi``, ``C``, ``G(phi)``, ``u*``,
+``u_hat``, the energy and RK4 steps for one state (shape ``(2n,)``) or a batch (shape ``(B, 2n)``).
+The public methods check their arguments; the environments call the compiled kernels
+(``self.compiled``) directly with preallocated buffers, like python-control's checked ``dynamics``
+beside a fast ``_rhs``.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from vnhc_gym.mechanics._checks import check_param, check_param_rows, check_state_rows, lower_bounds
 from vnhc_gym.mechanics.cache import load_module
 from vnhc_gym.mechanics.codegen import module_key, recipe_parts
-from vnhc_gym.mechanics.kernels import FLAG_NONFINITE, FLAG_SINGULAR
+from vnhc_gym.mechanics.numerics import FLAG_NONFINITE, FLAG_SINGULAR
 
 if TYPE_CHECKING:  # the symbolic layer (sympy) is imported only when a model needs it
     import sympy as sp
@@ -53,10 +54,12 @@ class SingularControlError(ArithmeticError):
     """The state is singular for the law: there the input fields are (nearly) tangent to the constraint.
 
     Theorem 2 needs the input fields transversal to the constraint (``C`` invertible); where the
-    transversality measure (:meth:`ConstrainedSystem.transversality`) is at most ``singular_tol``,
-    ``u*`` does not exist or is dominated by rounding.  Raised by :meth:`ConstrainedSystem.control`
-    with ``on_singular="raise"`` (the default), after the parameters and the states have been
-    checked: a bad parameter or a non-finite state raises ``ValueError`` instead.
+    transversality measure
+    ([`ConstrainedSystem.transversality`][vnhc_gym.mechanics.ConstrainedSystem.transversality]) is
+    at most ``singular_tol``, ``u*`` does not exist or is dominated by rounding.  Raised by
+    [`ConstrainedSystem.control`][vnhc_gym.mechanics.ConstrainedSystem.control] with
+    ``on_singular="raise"`` (the default), after the parameters and the states have been checked: a
+    bad parameter or a non-finite state raises ``ValueError`` instead.
 
     Attributes
     ----------
@@ -99,15 +102,15 @@ class ConstrainedSystem:
         The virtual constraint, with ``system.m`` components.
     outputs : mapping of str to sympy expression, optional
         Extra functions of the state and parameters to compile (for example the sea current
-        at the boat), evaluated by :meth:`outputs`.
+        at the boat), evaluated by [`outputs`][vnhc_gym.mechanics.ConstrainedSystem.outputs].
     singular_tol : float, default 1e-10
         The law's singular test: a state is singular when its transversality measure
-        (:meth:`transversality`) is at most ``singular_tol``, or is not finite.  The measure is the
-        smallest singular value of ``C^{ba} / (|J_b| |Y^a|)``, ``C`` normalised by the sizes, in the
-        metric, of the rows ``J_b = d phi^b/d qd`` and of the input fields ``Y^a`` it is built
-        from: a number in ``[0, 1]`` that rescaling masses, units, constraint components or
-        controls never changes, and that is small where the constraint's gradient is nearly
-        orthogonal to every input.
+        ([`transversality`][vnhc_gym.mechanics.ConstrainedSystem.transversality]) is at most
+        ``singular_tol``, or is not finite.  The measure is the smallest singular value of
+        ``C^{ba} / (|J_b| |Y^a|)``, ``C`` normalised by the sizes, in the metric, of the rows
+        ``J_b = d phi^b/d qd`` and of the input fields ``Y^a`` it is built from: a number in
+        ``[0, 1]`` that rescaling masses, units, constraint components or controls never changes,
+        and that is small where the constraint's gradient is nearly orthogonal to every input.
 
     Notes
     -----
@@ -115,15 +118,17 @@ class ConstrainedSystem:
     ``param_names``; every method takes ``params=None`` (defaults), a vector, or a
     ``(B, n_params)`` batch.  Every method refuses a non-finite parameter, and a parameter
     declared positive (``param_positive``) that is not > 0, with a ``ValueError`` that names it
-    and its row; the methods that evaluate the law (:meth:`control`, :meth:`step` and
-    :func:`~vnhc_gym.mechanics.simulate` with the law in the loop) refuse a non-finite state
+    and its row; the methods that evaluate the law
+    ([`control`][vnhc_gym.mechanics.ConstrainedSystem.control],
+    [`step`][vnhc_gym.mechanics.ConstrainedSystem.step] and
+    [`simulate`][vnhc_gym.mechanics.simulate] with the law in the loop) refuse a non-finite state
     likewise.  In the open loop a non-finite state is integrated and flagged ``FLAG_NONFINITE``.
 
     The constructor keys the generated-code cache on the symbolic input itself (and on the text of
-    the core files that derive and compile it), so it needs sympy.  :meth:`from_recipe` (used by
-    the shipped systems) keys it on a small recipe and the source files instead, and builds the
-    symbolic side only when it is asked for: a warm start neither imports sympy nor derives
-    anything.
+    the core files that derive and compile it), so it needs sympy.
+    [`from_recipe`][vnhc_gym.mechanics.ConstrainedSystem.from_recipe] (used by the shipped systems)
+    keys it on a small recipe and the source files instead, and builds the symbolic side only when
+    it is asked for: a warm start neither imports sympy nor derives anything.
     """
 
     name: str
@@ -135,7 +140,7 @@ class ConstrainedSystem:
     param_positive: tuple[bool, ...]
     default_params: Array
     output_names: tuple[str, ...]
-    kernels: ModuleType
+    compiled: ModuleType
 
     def __init__(self, system: MechanicalSystem, constraint: VelocityConstraint | HolonomicConstraint,
                  outputs: Mapping[str, sp.Expr] | None = None, singular_tol: float = 1e-10) -> None:
@@ -145,7 +150,7 @@ class ConstrainedSystem:
 
         self.singular_tol = _check_tol(singular_tol)
         self._recipe: tuple[object, ...] | None = None
-        self._fleet: tuple[ConstrainedSystem, FleetLayout] | None = None
+        self._unit_layout: tuple[ConstrainedSystem, FleetLayout] | None = None
         self._build: Builder | None = None
         self._parts: Parts | None = (system, constraint, dict(outputs or {}))
         self._law: SymbolicLaw | None = None
@@ -156,12 +161,12 @@ class ConstrainedSystem:
                sp.srepr(tuple(system.params)), str(holonomic), sp.srepr(expr),
                sp.srepr(tuple(self._outputs.items()))]
         self._key = module_key(key)
-        self.kernels = self._load()
+        self.compiled = self._load()
         # From the symbolic input, not the module: the key does not cover the default values.
         self.name = system.name
         self.n = system.n
         self.m = system.m
-        self.n_gains = int(self.kernels.NG)
+        self.n_gains = int(self.compiled.NG)
         self.holonomic = holonomic
         self.param_names = tuple(str(p) for p in system.params)
         self.param_positive = system.param_positive
@@ -203,15 +208,15 @@ class ConstrainedSystem:
         self._build = build
         self._parts = None
         self._law = None
-        self._fleet = None
+        self._unit_layout = None
         self._key = module_key(recipe_parts(self._recipe), sources)
-        self.kernels = self._load()
+        self.compiled = self._load()
         self._read_metadata()
         return self
 
     def _read_metadata(self) -> None:
         """Sizes, names and defaults from the compiled module (no sympy needed)."""
-        k = self.kernels
+        k = self.compiled
         self.name = str(k.NAME)
         self.n = int(k.N)
         self.m = int(k.M)
@@ -227,7 +232,7 @@ class ConstrainedSystem:
     def fleet(cls, unit: ConstrainedSystem, layout: FleetLayout, *, build: Builder | None = None,
               singular_tol: float = 1e-10) -> ConstrainedSystem:
         """A fleet of ``layout.replicas`` copies of ``unit`` sharing an autonomous part, compiled once
-        for any number of copies (see :mod:`vnhc_gym.mechanics.fleet`).
+        for any number of copies (see `vnhc_gym.mechanics.fleet`).
 
         Parameters
         ----------
@@ -240,7 +245,7 @@ class ConstrainedSystem:
             ``constraint`` and ``symbolic`` (display and tests); not needed to run anything.
         singular_tol : float, default 1e-10
         """
-        from vnhc_gym.mechanics import fleet as _fleet
+        from vnhc_gym.mechanics import fleet as fleet_module
 
         if layout.state_map.shape[1] != 2 * unit.n or layout.own.shape[0] != unit.n or \
                 layout.param_map.shape[1] != len(unit.param_names):
@@ -258,16 +263,16 @@ class ConstrainedSystem:
         self._build = build
         self._parts = None
         self._law = None
-        self._fleet = (unit, layout)
-        self._key = module_key(["fleet", unit._key, layout.digest()], [_fleet.__file__ or "",
-                                                                      Path(_fleet.__file__).with_name("_fleet.py")])
-        self.kernels = self._load()
+        self._unit_layout = (unit, layout)
+        self._key = module_key(["fleet", unit._key, layout.digest()], [fleet_module.__file__ or "",
+                                                                      Path(fleet_module.__file__).with_name("_fleet.py")])
+        self.compiled = self._load()
         self._read_metadata()
         return self
 
     def _load(self) -> ModuleType:
-        if self._fleet is not None:
-            label = f"{self._fleet[1].name} (a fleet of {self._fleet[0].name})"
+        if self._unit_layout is not None:
+            label = f"{self._unit_layout[1].name} (a fleet of {self._unit_layout[0].name})"
         elif self._recipe is not None:
             label = "/".join(map(str, self._recipe))
         else:
@@ -275,10 +280,10 @@ class ConstrainedSystem:
         return load_module(self._key, self._make_source, label=label, required=KERNELS)
 
     def _make_source(self) -> str:
-        if self._fleet is not None:
+        if self._unit_layout is not None:
             from vnhc_gym.mechanics.fleet import fleet_source
 
-            return fleet_source(*self._fleet)
+            return fleet_source(*self._unit_layout)
         from vnhc_gym.mechanics.codegen import generate_source
 
         return generate_source(self.symbolic, self._outputs)
@@ -287,7 +292,7 @@ class ConstrainedSystem:
         # The compiled module is not picklable; it is re-imported from the on-disk cache.  A
         # recipe-built model pickles its recipe and builder, not the sympy objects.
         state = self.__dict__.copy()
-        state["kernels"] = None
+        state["compiled"] = None
         state["_law"] = None
         if state["_build"] is not None:
             state["_parts"] = None
@@ -295,9 +300,9 @@ class ConstrainedSystem:
 
     def __setstate__(self, state: dict[str, object]) -> None:
         self.__dict__.update(state)
-        self.kernels = self._load()
+        self.compiled = self._load()
         if "_lower" not in state:  # pickled before the signs were recorded: read them from the module
-            self.param_positive = tuple(bool(v) for v in self.kernels.PARAM_POSITIVE)
+            self.param_positive = tuple(bool(v) for v in self.compiled.PARAM_POSITIVE)
             self._lower = lower_bounds(self.param_positive)
 
     # ------------------------------------------------------------------ symbolic side
@@ -333,7 +338,8 @@ class ConstrainedSystem:
 
     @property
     def recipe(self) -> tuple[object, ...] | None:
-        """The recipe of a model made by :meth:`from_recipe`, else ``None``."""
+        """The recipe of a model made by
+        [`from_recipe`][vnhc_gym.mechanics.ConstrainedSystem.from_recipe], else ``None``."""
         return self._recipe
 
     @property
@@ -348,8 +354,9 @@ class ConstrainedSystem:
     def params(self, **overrides: float) -> Array:
         """Parameter vector with named overrides, e.g. ``params(m=3.0)``.
 
-        Same checks and messages as :meth:`MechanicalSystem.default_param_values`, from the
-        compiled module's parameter names, defaults and signs (no sympy).
+        Same checks and messages as
+        [`MechanicalSystem.default_param_values`][vnhc_gym.mechanics.system.MechanicalSystem.default_param_values], from
+        the compiled module's parameter names, defaults and signs (no sympy).
 
         Raises
         ------
@@ -412,7 +419,7 @@ class ConstrainedSystem:
         """Velocity constraint ``phi(q, qd)`` (``psi = d phi_h/dt`` if holonomic), shape ``(..., m)``."""
         s, single = self._states(state)
         out = np.empty((s.shape[0], self.m))
-        self.kernels.phi(s, self._params(params, s.shape[0]), out)
+        self.compiled.phi(s, self._params(params, s.shape[0]), out)
         return self._out(out, single)
 
     def phi_h(self, state: ArrayLike, params: ArrayLike | None = None) -> Array:
@@ -421,7 +428,7 @@ class ConstrainedSystem:
             raise ValueError("phi_h is only defined for a HolonomicConstraint")
         s, single = self._states(state)
         out = np.empty((s.shape[0], self.m))
-        self.kernels.phi_h(s, self._params(params, s.shape[0]), out)
+        self.compiled.phi_h(s, self._params(params, s.shape[0]), out)
         return self._out(out, single)
 
     def transversality(self, state: ArrayLike, params: ArrayLike | None = None) -> Array | float:
@@ -447,17 +454,17 @@ class ConstrainedSystem:
         """
         s, single = self._states(state)
         out = np.empty(s.shape[0])
-        self.kernels.transversal(s, self._params(params, s.shape[0]), out)
+        self.compiled.transversal(s, self._params(params, s.shape[0]), out)
         return float(out[0]) if single else out
 
     def decoupling(self, state: ArrayLike, params: ArrayLike | None = None) -> tuple[Array, Array]:
         """``(C, G(phi))``: ``C[b, a] = d phi^b/d qd . Y^a`` and the Lie derivative along the drift."""
         s, single = self._states(state)
         b = s.shape[0]
-        k = int(self.kernels.BLOCK)
+        k = int(self.compiled.BLOCK)
         blocks = np.empty((b, self.m, k))
         g = np.empty((b, self.m))
-        self.kernels.cg(s, self._params(params, b), blocks, g)
+        self.compiled.cg(s, self._params(params, b), blocks, g)
         # Expand the block rows into the full m x m matrix.
         c = np.zeros((b, self.m, self.m))
         rows = np.arange(self.m)
@@ -471,7 +478,7 @@ class ConstrainedSystem:
         b = s.shape[0]
         a0 = np.empty((b, self.n))
         y = np.empty((b, self.n, self.m))
-        self.kernels.dyn(s, self._params(params, b), a0, y)
+        self.compiled.dyn(s, self._params(params, b), a0, y)
         return self._out(a0, single), self._out(y, single)
 
     def acceleration(self, state: ArrayLike, u: ArrayLike, params: ArrayLike | None = None) -> Array:
@@ -483,14 +490,14 @@ class ConstrainedSystem:
         """Mechanical energy ``1/2 qd^T M qd + V(q)``."""
         s, single = self._states(state)
         out = np.empty(s.shape[0])
-        self.kernels.energy(s, self._params(params, s.shape[0]), out)
+        self.compiled.energy(s, self._params(params, s.shape[0]), out)
         return float(out[0]) if single else out
 
     def outputs(self, state: ArrayLike, params: ArrayLike | None = None) -> Array:
         """The extra compiled outputs, in the order of ``output_names``."""
         s, single = self._states(state)
         out = np.empty((s.shape[0], len(self.output_names)))
-        self.kernels.aux(s, self._params(params, s.shape[0]), out)
+        self.compiled.aux(s, self._params(params, s.shape[0]), out)
         return self._out(out, single)
 
     def control(self, state: ArrayLike, gains: ArrayLike | None = None, params: ArrayLike | None = None,
@@ -506,8 +513,10 @@ class ConstrainedSystem:
         params : array_like, optional
             Finite; > 0 where declared positive.
         on_singular : {"raise", "flag"}
-            ``"raise"``: raise :class:`SingularControlError` if the state is singular at any row
-            (its :meth:`transversality` is at most ``singular_tol``).
+            ``"raise"``: raise [`SingularControlError`][vnhc_gym.mechanics.SingularControlError] if
+            the state is singular at any row (its
+            [`transversality`][vnhc_gym.mechanics.ConstrainedSystem.transversality] is at most
+            ``singular_tol``).
             ``"flag"``: return ``(u, singular)``, with ``u = 0`` on singular rows.
 
         Raises
@@ -515,7 +524,7 @@ class ConstrainedSystem:
         ValueError
             If a parameter is not finite (or not > 0 where declared positive) or a state is not
             finite: the message names the row and the entry.  These are checked first, so a
-            :class:`SingularControlError` always means a singular state.
+            [`SingularControlError`][vnhc_gym.mechanics.SingularControlError] always means a singular state.
         """
         if on_singular not in ("raise", "flag"):
             raise ValueError(f"on_singular must be 'raise' or 'flag', got {on_singular!r}")
@@ -526,13 +535,13 @@ class ConstrainedSystem:
         self._law_states(s, single)
         u = np.empty((b, self.m))
         flags = np.empty(b, dtype=np.int64)
-        self.kernels.law(s, p, k, self.singular_tol, u, flags)
+        self.compiled.law(s, p, k, self.singular_tol, u, flags)
         singular = (flags & FLAG_SINGULAR) != 0
         if on_singular == "raise":
             if singular.any():
                 rows = np.flatnonzero(singular)
                 measure = np.empty(rows.size)
-                self.kernels.transversal(np.ascontiguousarray(s[rows]), np.ascontiguousarray(p[rows]), measure)
+                self.compiled.transversal(np.ascontiguousarray(s[rows]), np.ascontiguousarray(p[rows]), measure)
                 raise SingularControlError(rows, measure, self.singular_tol)
             return self._out(u, single)
         return self._out(u, single), (singular[0] if single else singular)
@@ -601,7 +610,7 @@ class ConstrainedSystem:
         out = np.empty_like(s)
         u_out = np.empty((b, self.m))
         flags = np.empty(b, dtype=np.int64)
-        self.kernels.rk4(s, p, p, uh, k, FEEDBACK_MODES[feedback], lo, hi, float(dt), int(substeps),
+        self.compiled.rk4(s, p, p, uh, k, FEEDBACK_MODES[feedback], lo, hi, float(dt), int(substeps),
                          self.singular_tol, out, u_out, flags)
         return self._out(out, single), self._out(u_out, single), (flags[0] if single else flags)
 

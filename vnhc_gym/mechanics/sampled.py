@@ -6,8 +6,8 @@ period ``dt``; held, ``u*`` no longer gives ``phi(t + dt) = exp(-K dt) phi(t)`` 
 drift changes inside the period, and ``phi`` levels off at a small but nonzero value (see
 the docs' math page, "the sampled-data fact").
 
-:func:`sampled_control` chooses the held control so that the *discrete* closed loop is the
-exact discretisation of the continuous one,
+[`sampled_control`][vnhc_gym.mechanics.sampled_control] chooses the held control so that the
+*discrete* closed loop is the exact discretisation of the continuous one,
 
 .. math::
 
@@ -17,7 +17,7 @@ where ``F_dt`` is the RK4 step map of the model over one control period (open lo
 held; the same map an environment integrates with).  The ``m`` equations in ``m`` unknowns are
 solved by Newton's method, started from ``u*``, with a central finite-difference Jacobian;
 every candidate control and its ``2m`` perturbations of every batch row are integrated in one
-call of the compiled kernel ``model.kernels.rk4``.  For the flocking system the equation is
+call of the compiled kernel ``model.compiled.rk4``.  For the flocking system the equation is
 affine in ``u`` (the held motion is a polynomial of degree two in time, which RK4 integrates
 exactly), so a single Newton step solves it to rounding error.
 
@@ -29,8 +29,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vnhc_gym.mechanics.kernels import FLAG_NONFINITE, FLAG_SINGULAR
 from vnhc_gym.mechanics.model import FEEDBACK_MODES, ConstrainedSystem
+from vnhc_gym.mechanics.numerics import FLAG_NONFINITE, FLAG_SINGULAR
 
 __all__ = ["sampled_control"]
 
@@ -102,7 +102,7 @@ def sampled_control(model: ConstrainedSystem, states: ArrayLike, params: ArrayLi
     p = model._params(params, b)
     k = model._gains(gains, b)
     model._law_states(s, single)
-    k_ = model.kernels
+    k_ = model.compiled
     tol = model.singular_tol
 
     # Start: the continuous-time law at the start of the period.

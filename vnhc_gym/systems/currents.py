@@ -1,8 +1,8 @@
 """A library of sea-current fields ``C(x, y) = (C1, C2)`` for the USV.
 
 Each field is a symbolic expression in ``(x, y)`` and named parameters, so the USV's law and
-dynamics are derived and compiled with it; :meth:`CurrentField.value` and
-:meth:`CurrentField.jacobian` evaluate it with numpy (rendering, analysis).
+dynamics are derived and compiled with it; `CurrentField.value` and
+`CurrentField.jacobian` evaluate it with numpy (rendering, analysis).
 
 =============  ============================================  ==================================
 name           C(x, y)                                       parameters (default)

@@ -79,10 +79,11 @@ def flocking_system(n_agents: int = 4) -> tuple[MechanicalSystem, VelocityConstr
 def make_flocking(n_agents: int = 4) -> ConstrainedSystem:
     """Compiled flocking system of ``n_agents`` particles (cached per ``n_agents``).
 
-    A fleet (:meth:`ConstrainedSystem.fleet`) of ``n_agents - 1`` copies of the two-particle system
-    (one follower and the leader, which every copy shares): the unit is compiled once, whatever
-    ``n_agents`` is.  Parameters are ``(m_1, ..., m_N, g)``, defaults ``m_i = 2``, ``g = 10`` (the
-    paper's); the state is ``(x_1..x_N, z_1..z_N, xd_1..xd_N, zd_1..zd_N)``, leader last.
+    A fleet ([`ConstrainedSystem.fleet`][vnhc_gym.mechanics.ConstrainedSystem.fleet]) of
+    ``n_agents - 1`` copies of the two-particle system (one follower and the leader, which every
+    copy shares): the unit is compiled once, whatever ``n_agents`` is.  Parameters are
+    ``(m_1, ..., m_N, g)``, defaults ``m_i = 2``, ``g = 10`` (the paper's); the state is
+    ``(x_1..x_N, z_1..z_N, xd_1..xd_N, zd_1..zd_N)``, leader last.
     """
     n = _check_n_agents(n_agents)
     if n > MAX_AGENTS:

@@ -1,7 +1,7 @@
 """An unmanned surface vehicle (USV) in a sea current (paper, Section IV-B).
 
 ``q = (x, y, theta)``, mass ``m``, inertia ``I``, current ``C(x, y) = s * (C1, C2)`` with
-``s = current_scale`` (see :mod:`vnhc_gym.systems.currents`).  One control ``u``, covector
+``s = current_scale`` (see `vnhc_gym.systems.currents`).  One control ``u``, covector
 ``f = sin(theta) dx - cos(theta) dy + d theta``:
 
 .. math::
@@ -83,7 +83,8 @@ def make_usv(current: str = "northeast") -> ConstrainedSystem:
 
     Parameters are ``(m, I, current_scale, c_<current params>...)``; see ``param_names``.
     Keyed on the recipe ``("usv", current)`` and the text of this file and of the current
-    library: a warm start does not import sympy (see :meth:`ConstrainedSystem.from_recipe`).
+    library: a warm start does not import sympy (see
+    [`ConstrainedSystem.from_recipe`][vnhc_gym.mechanics.ConstrainedSystem.from_recipe]).
     """
     get_current(current)  # validates the name without building anything
     return ConstrainedSystem.from_recipe(("usv", current), partial(usv_system, current),

@@ -1,8 +1,9 @@
 """The task registry: every environment, baseline, training run and benchmark reads its tasks here.
 
-Each entry names a task module (one file: its hooks, its :class:`~vnhc_gym.tasks.base.Task`, its
-environment class with the card and the native vector version) and the environment's name.
-Importing :mod:`vnhc_gym` registers ``vnhc_gym/<EnvName>-v0`` and ``-v1`` for each entry with
+Each entry names a task module (one file: its hooks, its [`Task`][vnhc_gym.tasks.base.Task] and its
+environment class with the card) and the environment's name; the registry makes the native vector
+version ([`vector_env_class`][vnhc_gym.envs.vector.vector_env_class]).
+Importing `vnhc_gym` registers ``vnhc_gym/<EnvName>-v0`` and ``-v1`` for each entry with
 Gymnasium, without importing the task modules (they load when an environment is made).
 """
 
@@ -16,7 +17,7 @@ from typing import Any
 from gymnasium.envs.registration import register, registry
 
 __all__ = ["TASKS", "Task", "TaskEntry", "VERSIONS", "env_id", "env_ids", "get_task", "register_task",
-           "task_of_env_id"]
+           "shipped_tasks", "task_of_env_id"]
 
 
 def __getattr__(name: str) -> Any:  # Task imports numba: only when a task author asks for it
@@ -42,13 +43,42 @@ class TaskEntry:
     module: str
     versions: dict[str, dict[str, Any]] = field(default_factory=lambda: dict(VERSIONS))
 
+    @property
+    def shipped(self) -> bool:
+        """True for the package's own tasks (their module is in `vnhc_gym`), False for a user's."""
+        return self.module.startswith("vnhc_gym.")
+
     def load(self) -> ModuleType:
         """The task module (imported on first use)."""
         return importlib.import_module(self.module)
 
     @property
+    def env_class(self) -> Any:
+        """The single environment class (``<env_name>Env`` of the module)."""
+        return self.load().__dict__[f"{self.env_name}Env"]
+
+    @property
+    def vector_class(self) -> Any:
+        """The native vector environment class (the module's, or made from the single one)."""
+        from vnhc_gym.envs.vector import vector_env_class
+
+        return vector_env_class(self.env_class)
+
+    @property
     def task_class(self) -> Any:
-        return self.load().__dict__[f"{self.env_name}Env"].task_class
+        return self.env_class.task_class
+
+
+@dataclass(frozen=True)
+class VectorEntryPoint:
+    """Gymnasium's ``vector_entry_point`` of a task: builds the native vector env on first use
+    (a picklable callable, so registering imports nothing)."""
+
+    module: str
+    env_name: str
+
+    def __call__(self, **kwargs: Any) -> Any:
+        return TaskEntry(self.env_name, self.env_name, self.module).vector_class(**kwargs)
 
 
 TASKS: dict[str, TaskEntry] = {}
@@ -57,7 +87,7 @@ TASKS: dict[str, TaskEntry] = {}
 def register_task(name: str, env_name: str, module: str, max_episode_steps: int = 400) -> TaskEntry:
     """Add a task to the registry and register its environments with Gymnasium.
 
-    ``module`` must define ``<env_name>Env`` and ``<env_name>VectorEnv``; the ids are
+    ``module`` must define ``<env_name>Env`` (its vector version is made here); the ids are
     ``vnhc_gym/<env_name>-v0`` and ``-v1`` (``VERSIONS``).
     """
     entry = TaskEntry(name, env_name, module)
@@ -65,9 +95,15 @@ def register_task(name: str, env_name: str, module: str, max_episode_steps: int 
     for version, kwargs in entry.versions.items():
         env = f"vnhc_gym/{env_name}-{version}"
         if env not in registry:
-            register(id=env, entry_point=f"{module}:{env_name}Env", vector_entry_point=f"{module}:{env_name}VectorEnv",
+            register(id=env, entry_point=f"{module}:{env_name}Env",
+                     vector_entry_point=VectorEntryPoint(module, env_name),
                      max_episode_steps=max_episode_steps, kwargs=dict(kwargs))
     return entry
+
+
+def shipped_tasks() -> dict[str, TaskEntry]:
+    """The package's own registered tasks (those with tuned settings, shipped agents and results)."""
+    return {name: e for name, e in TASKS.items() if e.shipped}
 
 
 def env_id(task: str, version: str = LATEST) -> str:
@@ -75,10 +111,11 @@ def env_id(task: str, version: str = LATEST) -> str:
     return f"vnhc_gym/{get_entry(task).env_name}-{version}"
 
 
-def env_ids(version: str | None = LATEST) -> list[str]:
-    """Every registered environment id (of one version, or of all with ``version=None``)."""
+def env_ids(version: str | None = LATEST, *, shipped_only: bool = False) -> list[str]:
+    """Every registered environment id (of one version, or of all with ``version=None``; only the
+    package's own tasks with ``shipped_only``)."""
     versions = [version] if version is not None else list(VERSIONS)
-    return [f"vnhc_gym/{e.env_name}-{v}" for e in TASKS.values() for v in versions]
+    return [f"vnhc_gym/{e.env_name}-{v}" for e in TASKS.values() if e.shipped or not shipped_only for v in versions]
 
 
 def get_entry(task: str) -> TaskEntry:
@@ -88,7 +125,7 @@ def get_entry(task: str) -> TaskEntry:
 
 
 def get_task(task: str) -> Any:
-    """The :class:`~vnhc_gym.tasks.base.Task` subclass of a registered task."""
+    """The [`Task`][vnhc_gym.tasks.base.Task] subclass of a registered task."""
     return get_entry(task).task_class
 
 
@@ -104,3 +141,5 @@ def task_of_env_id(env: str) -> TaskEntry:
 register_task("flocking", "FlockingAlign", "vnhc_gym.tasks.flocking")
 register_task("usv", "USVStream", "vnhc_gym.tasks.usv")
 register_task("sled", "SledCruise", "vnhc_gym.tasks.sled")
+register_task("cartpole", "CartPoleBalance", "vnhc_gym.tasks.cartpole")
+register_task("spacecraft", "SpacecraftPoint", "vnhc_gym.tasks.spacecraft")

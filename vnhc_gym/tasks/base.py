@@ -1,29 +1,50 @@
 """What a task is: the one definition that the environments, baselines, training and evaluation read.
 
-A task module (``vnhc_gym/tasks/usv.py`` is one) holds, in this order:
+A task module (``vnhc_gym/tasks/sled.py`` is one) holds, in this order:
 
-1. two compiled hooks, ``draw`` (a new episode of one row) and ``observe`` (a row's observation,
-   status and scale-free ``phi``), with ``DRAW_STAGES``; their signatures are those of
-   :mod:`vnhc_gym.envs._placeholder`;
-2. a :class:`Task` subclass: the mechanical system and constraint, the task's own options, the
-   constants the hooks read (``args``), the observation size, the default force bound, the
-   termination reasons, and how a controller reads the state back from an observation;
-3. the environment class with its card (a subclass of :class:`~vnhc_gym.envs.env.ConstraintEnv`)
-   and its native vector version.
+1. its hooks' constants (a ``NamedTuple`` called ``Args``), its termination codes, and two compiled
+   per-row hooks: ``draw`` (the start state of a new episode, and any random parameters of the
+   task's own) and ``observe`` (the observation, and 0 or a termination code);
+2. its options (a [`TaskOptions`][vnhc_gym.envs.config.TaskOptions] dataclass) and its
+   [`Task`][vnhc_gym.tasks.base.Task] subclass: the mechanical system and constraint, the hooks'
+   constants, the observation size, the force bounds, the termination reasons by name, and how a
+   controller reads the state back from an observation;
+3. the environment class with its card (a subclass of [`ConstraintEnv`][vnhc_gym.envs.env.ConstraintEnv]);
+   the registry makes its native vector version.
 
-One line in :mod:`vnhc_gym.tasks` registers it.
+One line in `vnhc_gym.tasks` registers it.  Everything else is common to every task and done
+by the generated step and reset kernels (`vnhc_gym.envs._step_template`): the nominal
+parameters and the mismatch draw, impulses, RK4, the non-finite check, the status, clipping of the
+observation, observation noise, the scale-free ``phi`` (``phi / phi_sf_scale`` unless the task
+writes its own) and the reward.
+
+The hooks' signatures::
+
+    @njit(cache=True)
+    def draw(rng, r, stage, state, params, aux, args) -> None: ...
+
+    @njit(cache=True, inline="always")
+    def observe(state, phi, aux, args, obs, phi_sf) -> int: ...
+
+``draw`` writes the row's start ``state`` with draws from ``rng`` (call ``uniform_ab(rng, r, lo, hi)``
+and the other draws of [`vnhc_gym.rng`][vnhc_gym.rng]); ``params`` holds the nominal parameters, which it may
+change where the task has random parameters of its own; ``aux`` holds the true model's extra
+outputs at the state drawn so far (for stages after the first).  ``observe`` writes ``obs`` from the
+``state``, ``phi`` (with the true parameters) and ``aux`` (with the nominal ones), may overwrite
+``phi_sf``, and returns 0 or one of the codes of `Task.reasons`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import asdict
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from vnhc_gym.envs.config import EnvConfig
-from vnhc_gym.envs.episode import StepConfig
-from vnhc_gym.mechanics import FEEDBACK_MODES, ConstrainedSystem
+from vnhc_gym.envs.config import EnvConfig, TaskOptions
+from vnhc_gym.mechanics import ConstrainedSystem
 
 __all__ = ["Task"]
 
@@ -33,59 +54,92 @@ Array = NDArray[np.float64]
 class Task:
     """A virtual-constraint task configured for one environment (subclass once per task).
 
-    Class attributes (the definition)
-    ---------------------------------
+    A subclass defines the class attributes below (the task's definition); its constructor sets the
+    instance attributes listed under Notes.
+
+    Attributes
+    ----------
     name : str
         Registry name (``"usv"``).
-    options : dict
-        The task's own constructor arguments and their defaults (besides :class:`EnvConfig`'s).
-    reasons : tuple of str
-        Termination reasons of the task's ``observe`` (status codes ``TASK_STATUS + i``);
-        ``"non_finite_state"`` is common to every task.
-    default_force_bound : float
-        Force (N) of action 1 when ``force_bound`` is not given.
+    Options : type of TaskOptions
+        The task's own keyword arguments, with defaults, meanings and checks.
+    reasons : mapping of str to int
+        Termination reasons by name, with the code (>= 1) the task's ``observe`` returns for each;
+        ``"non_finite_state"`` is common to every task.  Reasons that are a bound on one state
+        entry are better declared as ``limits``.
+    default_force_bound : float or tuple of float
+        Force of action 1 per control (one number: the same for every control) when
+        ``force_bound`` is not given, in ``force_units``.
+    force_units : str or tuple of str
+        Units of each control (``"N"``, ``("N", "N m")``).
     default_impulse_scale : float
         Standard deviation (m/s) of a velocity impulse when ``impulse_scale`` is not given.
     reward_sigma : float
         Width of the bounded reward ``exp(-|phi~| / sigma)`` when ``reward_sigma`` is not given.
-    phi_units, phi_sf_meaning : str
-        Units of ``phi`` and what the scale-free ``phi~`` is, for tables and docs.
+    phi_units : str
+        Units of ``phi``, for tables and docs.
+    phi_sf_meaning : str
+        What the scale-free ``phi~`` is, for tables and docs.
+    phi_sf_scale : float
+        ``phi~ = phi / phi_sf_scale`` (in ``phi``'s units) unless ``observe`` writes its own.
+    angles : tuple of int
+        The state's coordinates that are angles: an observer takes their differences modulo 2 pi,
+        and a run whose angle leaves the inline sine's range ends as non-finite.
+    uncertain : tuple of str
+        Names of the parameters the ``mismatch`` scenario perturbs (an adaptive controller estimates
+        them), in [`controller_model`][vnhc_gym.tasks.base.Task.controller_model]'s parameter names.
+    draw_stages : int
+        Number of stages of ``draw`` (a stage after the first sees the model's outputs at the state
+        drawn so far).
+    mismatch_stage : int
+        The true parameters are drawn just before this stage of ``draw`` (0: before the task draws
+        anything; ``draw_stages``: after it is done).
 
-    Instance attributes (set by the subclass's constructor)
-    --------------------------------------------------------
-    config : EnvConfig
-    model : ConstrainedSystem
-        The compiled system with the constraint, the environment's dynamics.
-    nominal : ndarray
-        The nominal parameter vector of ``model`` (what a controller is told).
-    args : NamedTuple
-        The constants the hooks read (``observe(r, buf, cfg, args)``).
-    obs_dim : int
-    impulse_mask : ndarray, shape (n,)
-        Weights of the velocity entries that impulses kick (0 = never).
+    Notes
+    -----
+    Instance attributes, set by the subclass's constructor:
+
+    - ``config`` ([`EnvConfig`][vnhc_gym.envs.config.EnvConfig]): the settings every task shares.
+    - ``options`` ([`TaskOptions`][vnhc_gym.envs.config.TaskOptions]): the task's own options.
+    - ``model`` ([`ConstrainedSystem`][vnhc_gym.mechanics.ConstrainedSystem]): the compiled system
+      with the constraint, the environment's dynamics.
+    - ``nominal`` (ndarray): the nominal parameter vector of ``model`` (what a controller is told).
+    - ``args`` (NamedTuple): the constants the hooks read.
+    - ``obs_dim`` (int): the observation size.
+    - ``impulse_mask`` (ndarray, shape ``(n,)``): weights of the velocity entries that impulses kick
+      (0 = never).
+    - ``limits`` (tuple of ``(str, int, float)``): ``(reason, index, bound)``: the episode ends with
+      ``reason`` when ``|state[index]| > bound`` (checked in order, after the code ``observe``
+      returns; default none).
     """
 
     name: ClassVar[str]
-    options: ClassVar[dict[str, Any]] = {}
-    reasons: ClassVar[tuple[str, ...]] = ()
-    default_force_bound: ClassVar[float]
+    Options: ClassVar[type[TaskOptions]] = TaskOptions
+    reasons: ClassVar[Mapping[str, int]] = {}
+    default_force_bound: ClassVar[float | tuple[float, ...]]
+    force_units: ClassVar[str | tuple[str, ...]] = "N"
     default_impulse_scale: ClassVar[float]
     reward_sigma: ClassVar[float] = 0.1
     phi_units: ClassVar[str] = ""
     phi_sf_meaning: ClassVar[str] = ""
-    #: Indices of the controller state (:meth:`controller_inputs`) that are angles: an observer
-    #: takes their differences modulo 2 pi.
+    phi_sf_scale: float = 1.0  # a class attribute, or set by the constructor from the options
     angles: ClassVar[tuple[int, ...]] = ()
-    #: Names of the parameters the ``mismatch`` scenario perturbs (an adaptive controller estimates
-    #: them), in :meth:`controller_model`'s parameter names.
     uncertain: ClassVar[tuple[str, ...]] = ()
+    draw_stages: ClassVar[int] = 1
+    mismatch_stage: ClassVar[int] = 0
 
     config: EnvConfig
+    options: TaskOptions
     model: ConstrainedSystem
     nominal: Array
     args: NamedTuple
     obs_dim: int
     impulse_mask: Array
+    limits: tuple[tuple[str, int, float], ...] = ()
+
+    def __init__(self, config: EnvConfig, options: TaskOptions) -> None:
+        self.config = config
+        self.options = options
 
     @property
     def act_dim(self) -> int:
@@ -94,33 +148,50 @@ class Task:
 
     @property
     def force_bound(self) -> Array:
-        """Force (N) of action 1, per control: ``force_bound * force_bound_scale``."""
-        bound = self.config.force_bound if self.config.force_bound is not None else self.default_force_bound
-        return np.full(self.act_dim, bound * self.config.force_bound_scale)
+        """Force of action 1, per control: ``force_bound`` (one number for every control) or the
+        task's default, times ``force_bound_scale``."""
+        c = self.config
+        bound = c.force_bound if c.force_bound is not None else self.default_force_bound
+        return np.broadcast_to(np.asarray(bound, dtype=np.float64), (self.act_dim,)) * c.force_bound_scale
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        """Units of each control."""
+        u = self.force_units
+        return (u,) * self.act_dim if isinstance(u, str) else tuple(u)
+
+    @property
+    def reason_codes(self) -> dict[str, int]:
+        """Every termination reason's code: the declared ``reasons``, then the reasons that only
+        ``limits`` name, numbered on."""
+        codes = dict(self.reasons)
+        for reason, _, _ in self.limits:
+            if reason not in codes:
+                codes[reason] = max(codes.values(), default=0) + 1
+        return codes
 
     @property
     def all_reasons(self) -> tuple[str | None, ...]:
-        """``termination_reason`` by status code (None for "no termination")."""
-        return (None, "non_finite_state", *self.reasons)
+        """``termination_reason`` by status (None for "no termination"); code ``c`` is status ``1 + c``."""
+        codes = self.reason_codes
+        out: list[str | None] = [None, "non_finite_state"] + [None] * (max(codes.values(), default=0))
+        for reason, code in codes.items():
+            out[1 + code] = reason
+        return tuple(out)
 
-    def step_config(self, feedback: str = "open", gains: Any = 1.0) -> StepConfig:
-        """The step's named scalars, from the configuration (``feedback``/``gains``: the in-loop law of
-        :meth:`~vnhc_gym.envs.runtime.Batch.set_feedback`)."""
-        c = self.config
-        if feedback not in FEEDBACK_MODES:
-            raise ValueError(f"feedback must be one of {sorted(FEEDBACK_MODES)}, got {feedback!r}")
-        k = np.broadcast_to(np.asarray(gains, dtype=np.float64), (self.model.n_gains,)).copy()
-        if not (np.all(np.isfinite(k)) and np.all(k >= 0)):
-            raise ValueError(f"gains must be finite and >= 0, got {gains!r}")
-        bound = self.force_bound
-        return StepConfig(
-            dt=c.dt, substeps=c.substeps, bound=bound, lo=-bound, hi=bound.copy(), mode=FEEDBACK_MODES[feedback],
-            gains=k, singular_tol=self.model.singular_tol, bounded=c.reward == "bounded", phi_scale=c.phi_scale,
-            reward_sigma=self.reward_sigma if c.reward_sigma is None else c.reward_sigma,
-            action_cost=c.action_cost, reward_clip=c.reward_clip, obs_noise=c.obs_noise, obs_clip=c.obs_clip,
-            impulse_prob=c.impulse_prob,
-            impulse_scale=self.default_impulse_scale if c.impulse_scale is None else c.impulse_scale,
-            impulse_mask=self.impulse_mask)
+    @classmethod
+    def check_definition(cls) -> None:
+        """``ValueError`` if the class's declarations are inconsistent (codes, stages)."""
+        codes = list(dict(cls.reasons).values())
+        if any(not isinstance(c, int) or isinstance(c, bool) or c < 1 for c in codes) or len(set(codes)) != len(codes):
+            raise ValueError(f"{cls.__name__}.reasons must map names to distinct integer codes >= 1, "
+                             f"got {cls.reasons!r}")
+        if "non_finite_state" in cls.reasons:
+            raise ValueError(f"{cls.__name__}.reasons: 'non_finite_state' is common to every task")
+        if not (isinstance(cls.draw_stages, int) and cls.draw_stages >= 1
+                and isinstance(cls.mismatch_stage, int) and 0 <= cls.mismatch_stage <= cls.draw_stages):
+            raise ValueError(f"{cls.__name__}: need draw_stages >= 1 and 0 <= mismatch_stage <= draw_stages, got "
+                             f"{cls.draw_stages!r} and {cls.mismatch_stage!r}")
 
     # ------------------------------------------------------------------ what a controller reads
     def controller_model(self) -> ConstrainedSystem:
@@ -128,7 +199,8 @@ class Task:
         return self.model
 
     def controller_inputs(self, obs: Array) -> tuple[Array, Array]:
-        """States and parameters of :meth:`controller_model` rebuilt from observations ``(B, d)``.
+        """States and parameters of [`controller_model`][vnhc_gym.tasks.base.Task.controller_model]
+        rebuilt from observations ``(B, d)``.
 
         The parameters are the nominal ones (a controller is never told the true ones); entries
         the law does not depend on (positions of free-falling particles, say) may be zero.
@@ -137,10 +209,18 @@ class Task:
 
     def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
         """Controller states and parameters predicted one step ahead, expressed in the frame of the
-        next :meth:`controller_inputs` (identity unless that frame moves with the system)."""
+        next [`controller_inputs`][vnhc_gym.tasks.base.Task.controller_inputs] (identity unless that
+        frame moves with the system)."""
         return states, params
+
+    def scene(self, state: Array, phi: Array, params: Array) -> Any:
+        """What a frame shows of one episode (a [`Scene`][vnhc_gym.envs.rendering.Scene]: bodies,
+        links, every ``phi`` component), from its state, ``phi`` and true parameters.  A task that
+        does not define it has no render modes."""
+        raise NotImplementedError
 
     def describe(self) -> dict[str, Any]:
         """A JSON-friendly summary of the configured task (for result files)."""
         return {"task": self.name, "config": {k: getattr(self.config, k) for k in self.config.__dataclass_fields__},
-                "force_bound": self.force_bound.tolist(), "obs_dim": self.obs_dim, "act_dim": self.act_dim}
+                "options": asdict(self.options), "force_bound": self.force_bound.tolist(), "units": list(self.units),
+                "obs_dim": self.obs_dim, "act_dim": self.act_dim}

@@ -3,23 +3,22 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from vnhc_gym.envs.config import check_integer, check_number
+from vnhc_gym.envs.config import EnvConfig, TaskOptions, check_number, option
 from vnhc_gym.envs.env import ConstraintEnv
-from vnhc_gym.envs.episode import STATUS_NONFINITE, STATUS_OK, Buffers, StepConfig
-from vnhc_gym.envs.vector import ConstraintVectorEnv
-from vnhc_gym.kernels import draw_mismatch, sign, uniform_ab
-from vnhc_gym.mechanics import FLAG_NONFINITE
+from vnhc_gym.envs.rendering import Scene, flock_scene
+from vnhc_gym.rng import sign, uniform_ab
 from vnhc_gym.systems.flocking import FLOCKING_PRESETS, MAX_AGENTS, make_flocking
 from vnhc_gym.tasks.base import Task
 
 Array = NDArray[np.float64]
-__all__ = ["FlockingAlignEnv", "FlockingAlignVectorEnv", "FlockingTask", "LOG_SPEED_SCALE", "flocking_obs_dim"]
+__all__ = ["FlockingAlignEnv", "FlockingOptions", "FlockingTask", "LOG_SPEED_SCALE", "flocking_obs_dim"]
 
 #: The leader's speed enters the observation as ``log(|v_N|) / LOG_SPEED_SCALE``.
 LOG_SPEED_SCALE = 5.0
@@ -34,87 +33,86 @@ class Args(NamedTuple):
     """The flocking hooks' constants."""
 
     n_agents: int
-    nominal: np.ndarray  #: nominal parameters (m_1..m_N, g)
-    mismatch_mask: np.ndarray  #: follower masses
-    mismatch: float  #: relative half-width of the mismatch
     preset_state: np.ndarray  #: the preset's start state (unused without a preset)
     use_preset: bool
-    vel_scale: float  #: the scale of the scale-free phi (m/s)
-
-
-DRAW_STAGES = 1  #: the start state needs no output of the model
 
 
 @njit(cache=True)
-def draw(r: int, stage: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
+def draw(rng: np.ndarray, r: int, stage: int, state: np.ndarray, params: np.ndarray, aux: np.ndarray,
+         args: Args) -> None:
     """A new episode (state layout ``(x_1..x_N, z_1..z_N, xd_1..xd_N, zd_1..zd_N)``, leader last),
     drawn from row ``r``'s stream in a fixed order."""
     n = args.n_agents
-    rng = buf.rng
-    S = buf.state[r]
     if args.use_preset:
         for j in range(4 * n):
-            S[j] = args.preset_state[j]
-    else:
-        # Leader: xd_N - zd_N in [1, 3] keeps C = diag((xd_N - zd_N)/m) away from singular for
-        # the whole episode (zd_N only decreases in free fall).
-        lx = uniform_ab(rng, r, 0.5, 2.0) * sign(rng, r)
-        lz = lx - uniform_ab(rng, r, 1.0, 3.0)
-        speed = math.hypot(lx, lz)
-        angle = math.atan2(lz, lx)
-        S[n - 1] = 0.0
-        S[2 * n - 1] = 100.0
-        S[3 * n - 1] = lx
-        S[4 * n - 1] = lz
-        for b in range(n - 1):
-            # Followers: off the manifold by construction (angle offset 0.3..1.2 rad either way).
-            off = uniform_ab(rng, r, 0.3, 1.2) * sign(rng, r)
-            mag = speed * uniform_ab(rng, r, 0.5, 2.0)
-            S[2 * n + b] = mag * math.cos(angle + off)
-            S[3 * n + b] = mag * math.sin(angle + off)
-            S[b] = uniform_ab(rng, r, -20.0, 20.0)
-            S[n + b] = 100.0 + uniform_ab(rng, r, -20.0, 20.0)
-    for j in range(args.nominal.shape[0]):
-        buf.params_nominal[r, j] = args.nominal[j]
-    draw_mismatch(rng, r, args.nominal, args.mismatch_mask, args.mismatch, buf.params_true[r])
+            state[j] = args.preset_state[j]
+        return
+    # Leader: xd_N - zd_N in [1, 3] keeps C = diag((xd_N - zd_N)/m) away from singular for the whole
+    # episode (zd_N only decreases in free fall).
+    lx = uniform_ab(rng, r, 0.5, 2.0) * sign(rng, r)
+    lz = lx - uniform_ab(rng, r, 1.0, 3.0)
+    speed = math.hypot(lx, lz)
+    angle = math.atan2(lz, lx)
+    state[n - 1] = 0.0
+    state[2 * n - 1] = 100.0
+    state[3 * n - 1] = lx
+    state[4 * n - 1] = lz
+    for b in range(n - 1):
+        # Followers: off the manifold by construction (angle offset 0.3..1.2 rad either way).
+        off = uniform_ab(rng, r, 0.3, 1.2) * sign(rng, r)
+        mag = speed * uniform_ab(rng, r, 0.5, 2.0)
+        state[2 * n + b] = mag * math.cos(angle + off)
+        state[3 * n + b] = mag * math.sin(angle + off)
+        state[b] = uniform_ab(rng, r, -20.0, 20.0)
+        state[n + b] = 100.0 + uniform_ab(rng, r, -20.0, 20.0)
 
 
 @njit(cache=True, inline="always")
-def observe(r: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
+def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs: np.ndarray,
+            phi_sf: np.ndarray) -> int:
     """Velocities in units of the leader's speed, its direction and log speed, ``phi^b / |v_N|^2``;
-    status (non-finite only); scale-free ``phi~^b = phi^b / (|v_N| v_scale)``, follower ``b``'s velocity
-    across the leader's direction of motion, over ``v_scale`` (1 m/s)."""
+    the scale-free ``phi~^b = phi^b / (|v_N| phi_sf_scale)``: follower ``b``'s velocity across the
+    leader's direction of motion, over 1 m/s."""
     n = args.n_agents
     nf = n - 1
     vx0 = 2 * n
     vz0 = 3 * n
-    S = buf.state[r]
-    out = buf.obs[r]
-    clip = cfg.obs_clip
-    buf.status[r] = STATUS_NONFINITE if buf.flags[r] & FLAG_NONFINITE else STATUS_OK
-    lx = S[vx0 + nf]
-    lz = S[vz0 + nf]
+    lx = state[vx0 + nf]
+    lz = state[vz0 + nf]
     speed = max(math.sqrt(lx * lx + lz * lz), 1e-12)
     inv = 1.0 / speed
     ex = lx * inv
     ez = lz * inv
     for b in range(nf):
-        rx = S[vx0 + b] * inv
-        rz = S[vz0 + b] * inv
-        out[2 * b] = min(max(rx, -clip), clip)
-        out[2 * b + 1] = min(max(rz, -clip), clip)
-        out[2 * nf + 3 + b] = min(max(ex * rz - rx * ez, -clip), clip)  # phi_b / |v_N|^2
-        buf.phi_sf[r, b] = buf.phi[r, b] / (speed * args.vel_scale)
-    out[2 * nf] = min(max(ex, -clip), clip)
-    out[2 * nf + 1] = min(max(ez, -clip), clip)
-    out[2 * nf + 2] = min(max(math.log(speed) / LOG_SPEED_SCALE, -clip), clip)
+        rx = state[vx0 + b] * inv
+        rz = state[vz0 + b] * inv
+        obs[2 * b] = rx
+        obs[2 * b + 1] = rz
+        obs[2 * nf + 3 + b] = ex * rz - rx * ez  # phi_b / |v_N|^2
+        phi_sf[b] = phi_sf[b] / speed  # phi_sf starts as phi / phi_sf_scale
+    obs[2 * nf] = ex
+    obs[2 * nf + 1] = ez
+    obs[2 * nf + 2] = math.log(speed) / LOG_SPEED_SCALE
+    return 0
+
+
+@dataclass(frozen=True)
+class FlockingOptions(TaskOptions):
+    """The flock's own keyword arguments."""
+
+    preset: str | None = option(None, "``\"paper\"``: the paper's example", choices=FLOCKING_PRESETS, allow_none=True)
+    n_agents: int = option(4, "number of particles (the last one is the leader)", integer=True, low=2,
+                           high=MAX_AGENTS)
+    masses: Any = option(2.0, "one mass for all, or ``n_agents`` masses (kg)")
+    g: float = option(10.0, "gravity (m/s^2)", low=0.0, low_open=True, high=1e6)
 
 
 class FlockingTask(Task):
-    """Followers align their velocities with a free-falling leader (see :class:`FlockingAlignEnv`)."""
+    """Followers align their velocities with a free-falling leader (see
+    [`FlockingAlignEnv`][vnhc_gym.tasks.flocking.FlockingAlignEnv])."""
 
     name = "flocking"
-    options = {"preset": None, "n_agents": 4, "masses": 2.0, "g": 10.0}
+    Options = FlockingOptions
     #: The geometric law with the baseline's gain k = 5 needs more than this at the start of under
     #: 0.5 % of nominal episodes (max over 500 seeds: 264 N).
     default_force_bound = 250.0
@@ -123,43 +121,43 @@ class FlockingTask(Task):
     reward_sigma = 0.3
     phi_units = "m^2/s^2"
     phi_sf_meaning = "phi^b / (|v_N| 1 m/s): the follower's velocity across the leader's direction of motion"
-    #: The scale of the scale-free phi (m/s).
-    velocity_scale = 1.0
+    phi_sf_scale = 1.0
+    mismatch_stage = 1  # the start state is drawn before the true masses
 
     @property
     def uncertain(self) -> tuple[str, ...]:  # type: ignore[override]
         """The follower masses (what ``mismatch`` perturbs)."""
         return tuple(f"m_{i}" for i in range(1, self.n_agents))
 
-    def __init__(self, config: Any, *, preset: str | None = None, n_agents: int = 4, masses: Any = 2.0,
-                 g: float = 10.0) -> None:
-        self.config = config
+    def __init__(self, config: EnvConfig, options: FlockingOptions) -> None:
+        super().__init__(config, options)
+        preset, n_agents, masses, g = options.preset, options.n_agents, options.masses, options.g
         if preset is not None:
-            if not isinstance(preset, str) or preset not in FLOCKING_PRESETS:
-                raise ValueError(f"preset must be one of {sorted(FLOCKING_PRESETS)} or None, got {preset!r}")
             p = FLOCKING_PRESETS[preset]
             n_agents, masses, g = p.n_agents, p.masses, p.g
-        n_agents = check_integer("n_agents", n_agents, low=2, high=MAX_AGENTS)
         if np.ndim(masses) == 0:
             masses = (check_number("masses", masses, low=0.0, low_open=True, high=1e12),) * n_agents
         if not isinstance(masses, list | tuple | np.ndarray) or len(masses) != n_agents:
             raise ValueError(f"masses must be a positive number or {n_agents} positive numbers, got {masses!r}")
         m_arr = np.array([check_number(f"masses[{i}]", v, low=0.0, low_open=True, high=1e12)
                           for i, v in enumerate(masses)], dtype=np.float64)
-        g_ = check_number("g", g, low=0.0, low_open=True, high=1e6)
         self.n_agents = n_agents
         self.preset = preset
         self.model = make_flocking(n_agents)
-        self.nominal = np.array([*m_arr, g_], dtype=np.float64)
+        self.nominal = np.array([*m_arr, check_number("g", g, low=0.0, low_open=True, high=1e6)], dtype=np.float64)
         self.obs_dim = flocking_obs_dim(n_agents)
         self.impulse_mask = np.zeros(2 * n_agents)
         self.impulse_mask[: n_agents - 1] = 1.0  # follower xd
         self.impulse_mask[n_agents: 2 * n_agents - 1] = 1.0  # follower zd
         self.args = Args(
-            n_agents=n_agents, nominal=self.nominal,
-            mismatch_mask=np.array([True] * (n_agents - 1) + [False, False]), mismatch=config.param_mismatch,
+            n_agents=n_agents,
             preset_state=FLOCKING_PRESETS[preset].state() if preset is not None else np.zeros(4 * n_agents),
-            use_preset=preset is not None, vel_scale=self.velocity_scale)
+            use_preset=preset is not None)
+
+    def scene(self, state: Array, phi: Array, params: Array) -> Scene:
+        """The particles in their plane, the leader red, each follower with a guide along the leader's
+        direction of motion (the constraint asks its velocity to lie on it)."""
+        return flock_scene(self.n_agents, state, phi)
 
     def controller_inputs(self, obs: Array) -> tuple[Array, Array]:
         """Velocities rebuilt from the observation (positions 0: the law does not use them) and the
@@ -289,16 +287,3 @@ class FlockingAlignEnv(ConstraintEnv):
 
     task_class = FlockingTask
     task: FlockingTask
-
-    def _draw(self, row: int) -> NDArray[np.uint8] | None:
-        from vnhc_gym.envs.rendering import FlockingRenderer
-
-        if self._renderer is None:
-            self._renderer = FlockingRenderer(self.task.n_agents, str(self.render_mode), self.metadata["render_fps"])
-        return self._renderer.draw(self.batch.buf.state[row], self.batch.buf.phi[row])
-
-
-class FlockingAlignVectorEnv(ConstraintVectorEnv):
-    """The native vector version of :class:`FlockingAlignEnv`: ``num_envs`` flocks in one batch."""
-
-    env_class = FlockingAlignEnv

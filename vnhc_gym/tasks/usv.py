@@ -3,138 +3,124 @@
 from __future__ import annotations
 
 import math
-from typing import Any, NamedTuple
+from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from vnhc_gym.envs.config import check_number
+from vnhc_gym.envs.config import EnvConfig, TaskOptions, check_number, option
 from vnhc_gym.envs.env import ConstraintEnv
-from vnhc_gym.envs.episode import STATUS_NONFINITE, STATUS_OK, TASK_STATUS, Buffers, StepConfig
-from vnhc_gym.envs.vector import ConstraintVectorEnv
-from vnhc_gym.kernels import draw_mismatch, normal_pair, psincos, sign, uniform_ab
-from vnhc_gym.mechanics import FLAG_NONFINITE, ConstrainedSystem
-from vnhc_gym.mechanics.kernels import SINCOS_MAX_ARG
+from vnhc_gym.envs.rendering import Scene, hull_scene
+from vnhc_gym.mechanics import ConstrainedSystem
+from vnhc_gym.rng import normal_pair, psincos, sign, uniform_ab
 from vnhc_gym.systems.currents import CURRENTS, RANDOM_PARAM_NAMES, RANDOM_WEIGHTS, get_current
 from vnhc_gym.systems.usv import USV_PRESETS, make_usv
 from vnhc_gym.tasks.base import Task
 
 Array = NDArray[np.float64]
-__all__ = ["USVStreamEnv", "USVStreamVectorEnv", "USVTask", "USV_OBS_DIM", "VEL_SCALE", "RATE_SCALE"]
+__all__ = ["OBS_RATE_SCALE", "OBS_VEL_SCALE", "USVOptions", "USVStreamEnv", "USVTask", "USV_OBS_DIM"]
 
 USV_OBS_DIM = 14
-VEL_SCALE = 2.0  #: m/s: velocities and currents are divided by this in the observation
-RATE_SCALE = 2.0  #: rad/s: the turn rate is divided by this
-STATUS_OUT = TASK_STATUS  #: the boat left the charted square
-STATUS_SPIN = TASK_STATUS + 1  #: the turn rate exceeded its physical limit
+OBS_VEL_SCALE = 2.0  #: m/s: velocities and currents are divided by this in the observation
+OBS_RATE_SCALE = 2.0  #: rad/s: the turn rate is divided by this
 
 
 class Args(NamedTuple):
     """The USV hooks' constants."""
 
-    nominal: np.ndarray  #: nominal parameters (m, I, current_scale, c_...)
     amp_idx: np.ndarray  #: indices of the random current's amplitudes (empty for a fixed field)
     amp_w: np.ndarray  #: their standard deviations
-    mismatch_mask: np.ndarray  #: parameters that the mismatch scenario perturbs (m, I, current_scale)
-    mismatch: float  #: relative half-width of the mismatch
     preset_state: np.ndarray  #: the preset's start state (unused without a preset)
     use_preset: bool
     domain: float  #: half-width of the charted square (m)
-    max_rate: float  #: largest physical turn rate (rad/s)
-    vel_scale: float  #: the scale of the scale-free phi (m/s)
-
-
-DRAW_STAGES = 2  #: the start velocity (stage 1) depends on the true current at the start pose (stage 0)
-
-
-@njit(cache=True)
-def draw(r: int, stage: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
-    """A new episode: stage 0 draws the parameters (random current amplitudes, mismatch) and the pose;
-    stage 1 the velocity, from the true current ``buf.aux[r]`` at that pose."""
-    rng = buf.rng
-    S = buf.state[r]
-    if stage == 0:
-        PN = buf.params_nominal[r]
-        for j in range(args.nominal.shape[0]):
-            PN[j] = args.nominal[j]
-        for k in range(0, args.amp_idx.shape[0], 2):
-            z0, z1 = normal_pair(rng, r)
-            PN[args.amp_idx[k]] = args.amp_w[k] * z0
-            if k + 1 < args.amp_idx.shape[0]:
-                PN[args.amp_idx[k + 1]] = args.amp_w[k + 1] * z1
-        draw_mismatch(rng, r, PN, args.mismatch_mask, args.mismatch, buf.params_true[r])
-        if args.use_preset:
-            for j in range(6):
-                S[j] = args.preset_state[j]
-        else:
-            S[0] = uniform_ab(rng, r, -5.0, 5.0)
-            S[1] = uniform_ab(rng, r, -5.0, 5.0)
-            S[2] = uniform_ab(rng, r, -math.pi, math.pi)
-            S[3] = 0.0
-            S[4] = 0.0
-            S[5] = 0.0
-    elif not args.use_preset:
-        s, c = psincos(S[2])
-        c1 = buf.aux[r, 0]
-        c2 = buf.aux[r, 1]
-        # Forward through the water, and at least 0.3 m/s forward over ground along the heading:
-        # on the manifold I thetadd = -m thetad v_forward, unstable when the boat goes backwards.
-        forward = max(uniform_ab(rng, r, 0.5, 1.5), 0.3 - (c1 * c + c2 * s))
-        phi0 = uniform_ab(rng, r, 0.2, 1.0) * sign(rng, r)  # off the manifold by construction
-        # Velocity = current + forward speed along the heading + phi0 across it (mu = (sin, -cos)).
-        S[3] = c1 + forward * c + phi0 * s
-        S[4] = c2 + forward * s - phi0 * c
-        S[5] = uniform_ab(rng, r, -0.5, 0.5)
 
 
 @njit(cache=True, inline="always")
-def observe(r: int, buf: Buffers, cfg: StepConfig, args: Args) -> None:
-    """The observation (the nominal current map at the boat from ``buf.aux``), the status
-    (non-finite, out of the square, spinning) and the scale-free ``phi / vel_scale``."""
-    S = buf.state[r]
-    aux = buf.aux[r]
-    out = buf.obs[r]
-    if buf.flags[r] & FLAG_NONFINITE:
-        buf.status[r] = STATUS_NONFINITE
-    elif abs(S[0]) > args.domain or abs(S[1]) > args.domain:
-        buf.status[r] = STATUS_OUT
-    elif abs(S[5]) > args.max_rate:
-        buf.status[r] = STATUS_SPIN
-    elif not abs(S[2]) <= SINCOS_MAX_ARG:  # a heading beyond the inline sine's range: the run blew up
-        buf.status[r] = STATUS_NONFINITE
-    else:
-        buf.status[r] = STATUS_OK
-    s, c = psincos(S[2])
-    xd = S[3]
-    yd = S[4]
+def _velocity(rng: np.ndarray, r: int, state: np.ndarray, aux: np.ndarray) -> None:
+    """The start velocity at the drawn pose, from the true current ``aux`` there."""
+    s, c = psincos(state[2])
     c1 = aux[0]
     c2 = aux[1]
-    out[0] = c
-    out[1] = s
-    out[2] = xd / VEL_SCALE
-    out[3] = yd / VEL_SCALE
-    out[4] = S[5] / RATE_SCALE
-    out[5] = c1 / VEL_SCALE
-    out[6] = c2 / VEL_SCALE
-    out[7] = S[0] / args.domain
-    out[8] = S[1] / args.domain
-    out[9] = (s * xd - c * yd + c * c2 - s * c1) / VEL_SCALE  # phi with the nominal current
+    # Forward through the water, and at least 0.3 m/s forward over ground along the heading:
+    # on the manifold I thetadd = -m thetad v_forward, unstable when the boat goes backwards.
+    forward = max(uniform_ab(rng, r, 0.5, 1.5), 0.3 - (c1 * c + c2 * s))
+    phi0 = uniform_ab(rng, r, 0.2, 1.0) * sign(rng, r)  # off the manifold by construction
+    # Velocity = current + forward speed along the heading + phi0 across it (mu = (sin, -cos)).
+    state[3] = c1 + forward * c + phi0 * s
+    state[4] = c2 + forward * s - phi0 * c
+    state[5] = uniform_ab(rng, r, -0.5, 0.5)
+
+
+@njit(cache=True)
+def draw(rng: np.ndarray, r: int, stage: int, state: np.ndarray, params: np.ndarray, aux: np.ndarray,
+         args: Args) -> None:
+    """Stage 0: the random current's amplitudes (the true parameters are drawn from them); stage 1:
+    the pose, at rest; stage 2: the velocity, from the true current ``aux`` at that pose."""
+    if stage == 0:
+        for k in range(0, args.amp_idx.shape[0], 2):
+            z0, z1 = normal_pair(rng, r)
+            params[args.amp_idx[k]] = args.amp_w[k] * z0
+            if k + 1 < args.amp_idx.shape[0]:
+                params[args.amp_idx[k + 1]] = args.amp_w[k + 1] * z1
+    elif args.use_preset:
+        for j in range(6):
+            state[j] = args.preset_state[j]
+    elif stage == 1:
+        state[0] = uniform_ab(rng, r, -5.0, 5.0)
+        state[1] = uniform_ab(rng, r, -5.0, 5.0)
+        state[2] = uniform_ab(rng, r, -math.pi, math.pi)
+        state[3:] = 0.0
+    else:
+        _velocity(rng, r, state, aux)
+
+
+@njit(cache=True, inline="always")
+def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs: np.ndarray,
+            phi_sf: np.ndarray) -> int:
+    """The observation, with the nominal current map at the boat from ``aux`` (the terminations
+    are the task's ``limits``)."""
+    s, c = psincos(state[2])
+    xd = state[3]
+    yd = state[4]
+    c1 = aux[0]
+    c2 = aux[1]
+    obs[0] = c
+    obs[1] = s
+    obs[2] = xd / OBS_VEL_SCALE
+    obs[3] = yd / OBS_VEL_SCALE
+    obs[4] = state[5] / OBS_RATE_SCALE
+    obs[5] = c1 / OBS_VEL_SCALE
+    obs[6] = c2 / OBS_VEL_SCALE
+    obs[7] = state[0] / args.domain
+    obs[8] = state[1] / args.domain
+    obs[9] = (s * xd - c * yd + c * c2 - s * c1) / OBS_VEL_SCALE  # phi with the nominal current
     for j in range(4):
-        out[10 + j] = aux[2 + j]  # nominal dC1/dx, dC1/dy, dC2/dx, dC2/dy (1/s)
-    clip = cfg.obs_clip
-    for j in range(out.shape[0]):
-        out[j] = min(max(out[j], -clip), clip)
-    buf.phi_sf[r, 0] = buf.phi[r, 0] / args.vel_scale
+        obs[10 + j] = aux[2 + j]  # nominal dC1/dx, dC1/dy, dC2/dx, dC2/dy (1/s)
+    return 0
+
+
+@dataclass(frozen=True)
+class USVOptions(TaskOptions):
+    """The USV's own keyword arguments."""
+
+    preset: str | None = option(None, "``\"paper-northeast\"``, ``\"paper-anticyclone\"``", choices=USV_PRESETS,
+                                allow_none=True)
+    current: str = option("random", "a name of ``vnhc_gym.systems.CURRENTS``", choices=CURRENTS)
+    current_params: dict[str, float] | None = option(
+        None, "overrides of the current's parameters (fixes a random field)")
+    mass: float = option(10.0, "``m`` (kg)", low=0.0, low_open=True, high=1e12)
+    inertia: float = option(1.5, "``I`` (kg m^2)", low=0.0, low_open=True, high=1e12)
+    domain: float = option(100.0, "half-width of the charted square (m)", low=0.0, low_open=True, high=1e9)
+    max_turn_rate: float = option(10.0, "largest physical turn rate (rad/s)", low=0.0, low_open=True, high=1e6)
 
 
 class USVTask(Task):
-    """A USV in a current held to ``phi = mu(qd - C) = 0`` (see :class:`USVStreamEnv`)."""
+    """A USV in a current held to ``phi = mu(qd - C) = 0`` (see [`USVStreamEnv`][vnhc_gym.tasks.usv.USVStreamEnv])."""
 
     name = "usv"
-    options = {"preset": None, "current": "random", "current_params": None, "mass": 10.0, "inertia": 1.5,
-               "domain": 100.0, "max_turn_rate": 10.0}
-    reasons = ("out_of_domain", "turn_rate_exceeded")
+    Options = USVOptions
     #: The geometric law with the baseline's gain k = 5 needs at most ~57 N at the start of a nominal
     #: episode (500 seeds), so it never saturates at 100 N.
     default_force_bound = 100.0
@@ -143,27 +129,20 @@ class USVTask(Task):
     reward_sigma = 0.1
     phi_units = "m/s"
     phi_sf_meaning = "phi / (1 m/s): the sideways speed through the water"
-    #: The scale of the scale-free phi (m/s).
-    velocity_scale = 1.0
+    phi_sf_scale = 1.0
     angles = (2,)  # theta
     uncertain = ("m", "I", "current_scale")
+    draw_stages = 3
+    mismatch_stage = 1  # after the random current's amplitudes: the mismatch scales the drawn field
 
-    def __init__(self, config: Any, *, preset: str | None = None, current: str = "random",
-                 current_params: dict[str, float] | None = None, mass: float = 10.0, inertia: float = 1.5,
-                 domain: float = 100.0, max_turn_rate: float = 10.0) -> None:
-        self.config = config
+    def __init__(self, config: EnvConfig, options: USVOptions) -> None:
+        super().__init__(config, options)
+        preset, current, current_params = options.preset, options.current, options.current_params
+        mass, inertia = options.mass, options.inertia
         if preset is not None:
-            if not isinstance(preset, str) or preset not in USV_PRESETS:
-                raise ValueError(f"preset must be one of {sorted(USV_PRESETS)} or None, got {preset!r}")
             pr = USV_PRESETS[preset]
             current, mass, inertia, current_params = pr.current, pr.m, pr.inertia, None
-        if not isinstance(current, str) or current not in CURRENTS:
-            raise ValueError(f"current must be one of {sorted(CURRENTS)}, got {current!r}")
         field = get_current(current)
-        mass_ = check_number("mass", mass, low=0.0, low_open=True, high=1e12)
-        inertia_ = check_number("inertia", inertia, low=0.0, low_open=True, high=1e12)
-        domain_ = check_number("domain", domain, low=0.0, low_open=True, high=1e9)
-        rate_ = check_number("max_turn_rate", max_turn_rate, low=0.0, low_open=True, high=1e6)
         overrides: dict[str, float] = {}
         if current_params is not None:
             if not isinstance(current_params, dict):
@@ -177,23 +156,22 @@ class USVTask(Task):
                 overrides[f"c_{k}"] = check_number(f"current_params[{k!r}]", v, low=-1e6, high=1e6)
         self.preset = preset
         self.current = current
-        self.domain = domain_
-        self.max_turn_rate = rate_
+        self.domain = options.domain
+        self.max_turn_rate = options.max_turn_rate
         self.fixed_field = current != "random" or current_params is not None
         self.model = make_usv(current)
         names = self.model.param_names
-        self.nominal = self.model.params(m=mass_, I=inertia_, **overrides)
+        self.nominal = self.model.params(m=mass, I=inertia, **overrides)
         self.obs_dim = USV_OBS_DIM
         self.impulse_mask = np.array([1.0, 1.0, 0.0])  # kicks on xd, yd
         amp_idx = [] if self.fixed_field else [names.index(f"c_{k}") for k in RANDOM_PARAM_NAMES]
         self.args = Args(
-            nominal=self.nominal, amp_idx=np.array(amp_idx, dtype=np.intp),
+            amp_idx=np.array(amp_idx, dtype=np.intp),
             amp_w=np.asarray([] if self.fixed_field else RANDOM_WEIGHTS, dtype=np.float64),
-            mismatch_mask=np.array([n in ("m", "I", "current_scale") for n in names]),
-            mismatch=config.param_mismatch,
             preset_state=USV_PRESETS[preset].state() if preset is not None else np.zeros(6),
-            use_preset=preset is not None, domain=self.domain, max_rate=self.max_turn_rate,
-            vel_scale=self.velocity_scale)
+            use_preset=preset is not None, domain=self.domain)
+        self.limits = (("out_of_domain", 0, self.domain), ("out_of_domain", 1, self.domain),
+                       ("turn_rate_exceeded", 5, self.max_turn_rate))
 
     # ------------------------------------------------------------------ what a controller reads
     def controller_model(self) -> ConstrainedSystem:
@@ -214,20 +192,21 @@ class USVTask(Task):
         model = self.controller_model()
         zero = np.zeros(o.shape[0])
         th = np.arctan2(o[:, 1], o[:, 0])
-        st = np.stack([zero, zero, th, VEL_SCALE * o[:, 2], VEL_SCALE * o[:, 3], RATE_SCALE * o[:, 4]], axis=1)
+        st = np.stack([zero, zero, th, OBS_VEL_SCALE * o[:, 2], OBS_VEL_SCALE * o[:, 3], OBS_RATE_SCALE * o[:, 4]],
+                      axis=1)
         names = model.param_names
         p = np.tile(model.default_params, (o.shape[0], 1))
         p[:, names.index("m")] = self.nominal[self.model.param_names.index("m")]
         p[:, names.index("I")] = self.nominal[self.model.param_names.index("I")]
         p[:, names.index("current_scale")] = 1.0  # the observed current already includes the nominal scale
-        for name, col in (("c_c1", VEL_SCALE * o[:, 5]), ("c_c2", VEL_SCALE * o[:, 6]), ("c_j11", o[:, 10]),
+        for name, col in (("c_c1", OBS_VEL_SCALE * o[:, 5]), ("c_c2", OBS_VEL_SCALE * o[:, 6]), ("c_j11", o[:, 10]),
                           ("c_j12", o[:, 11]), ("c_j21", o[:, 12]), ("c_j22", o[:, 13])):
             p[:, names.index(name)] = col
         return st, p
 
     def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
         """The same states and affine currents in the frame centred on each boat (see
-        :meth:`controller_inputs`): the current at the boat becomes the field's constant term."""
+        `controller_inputs`): the current at the boat becomes the field's constant term."""
         names = self.controller_model().param_names
         s, p = states.copy(), params.copy()
         x, y = s[:, 0].copy(), s[:, 1].copy()
@@ -238,8 +217,20 @@ class USVTask(Task):
         s[:, 1] = 0.0
         return s, p
 
+    def scene(self, state: Array, phi: Array, params: Array) -> Scene:
+        """The boat from above in its true current (a quiver), its velocity and its velocity
+        through the water."""
+        values = self.current_params(params)
+        scale = float(params[self.model.param_names.index("current_scale")])
+        field = get_current(self.current)
+
+        def current(x: Array, y: Array) -> Array:
+            return scale * field.value(x, y, values)
+
+        return hull_scene(state, phi, current)
+
     def current_params(self, params: Array) -> dict[str, float]:
-        """A parameter vector's current parameters, for :class:`~vnhc_gym.systems.currents.CurrentField`."""
+        """A parameter vector's current parameters, for `vnhc_gym.systems.currents.CurrentField`."""
         names = self.model.param_names
         return {k: float(params[names.index(f"c_{k}")]) for k in get_current(self.current).defaults}
 
@@ -356,25 +347,3 @@ class USVStreamEnv(ConstraintEnv):
 
     task_class = USVTask
     task: USVTask
-
-    def _draw(self, row: int) -> NDArray[np.uint8] | None:
-        from vnhc_gym.envs.rendering import USVRenderer
-
-        if self._renderer is None:
-            self._renderer = USVRenderer(str(self.render_mode), self.metadata["render_fps"])
-        task = self.task
-        buf = self.batch.buf
-        params = task.current_params(buf.params_true[row])
-        scale = float(buf.params_true[row, task.model.param_names.index("current_scale")])
-        field = get_current(task.current)
-
-        def current(x: Array, y: Array) -> Array:
-            return scale * field.value(x, y, params)
-
-        return self._renderer.draw(buf.state[row], buf.phi[row], current)
-
-
-class USVStreamVectorEnv(ConstraintVectorEnv):
-    """The native vector version of :class:`USVStreamEnv`: ``num_envs`` boats in one batch."""
-
-    env_class = USVStreamEnv

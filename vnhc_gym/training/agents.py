@@ -1,7 +1,7 @@
 """Trained agents as policies: a saved SB3 model with its observation statistics and, for residual
 agents, the base controller it corrects.
 
-:func:`load_agent` returns an :class:`AgentPolicy` whose ``predict`` takes raw environment
+[`load_agent`][vnhc_gym.training.load_agent] returns an `AgentPolicy` whose ``predict`` takes raw environment
 observations and returns the action the environment should receive.  Names without a path
 (``"usv-ppo"``) load from the agents shipped in ``vnhc_gym/agents_zoo``; a path to your own file
 loads with a warning, because SB3 ``.zip`` files contain pickled Python objects (load only files you

@@ -1,4 +1,4 @@
-"""``vnhc-gym train``: one training run from the command line (see :mod:`vnhc_gym.training.run`)."""
+"""``vnhc-gym train``: one training run from the command line (see `vnhc_gym.training.run`)."""
 
 from __future__ import annotations
 

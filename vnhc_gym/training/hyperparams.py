@@ -10,19 +10,20 @@ them unchanged::
         --conf-file agents/hyperparams/ppo.yml
 
 (residual PPO is ``--algo ppo --conf-file agents/hyperparams/residual_ppo.yml``, recurrent PPO
-``--algo ppo_lstm --conf-file agents/hyperparams/recurrent_ppo.yml``: see :data:`RL_ZOO_ALGO`).
+``--algo ppo_lstm --conf-file agents/hyperparams/recurrent_ppo.yml``: see `RL_ZOO_ALGO`).
 
-RL Zoo turns the Python-expression strings into objects with ``eval``; :func:`load_hyperparams`
-reads the same files with ``yaml.safe_load`` and :func:`parse_literal`, a parser (Python's
-:mod:`ast`) for exactly the subset those strings use: ``dict(key=value, ...)``, ``{"key": value}``,
-lists, tuples, numbers, strings, ``True``/``False``/``None`` and ``nn.<Name>`` for the activation
-functions in :data:`ALLOWED_NN`.  Anything else raises ``ValueError``.
+RL Zoo turns the Python-expression strings into objects with ``eval``;
+[`load_hyperparams`][vnhc_gym.training.hyperparams.load_hyperparams] reads the same files with
+``yaml.safe_load`` and `parse_literal`, a parser (Python's `ast`) for exactly the subset those
+strings use: ``dict(key=value, ...)``, ``{"key": value}``, lists, tuples, numbers, strings,
+``True``/``False``/``None`` and ``nn.<Name>`` for the activation functions in `ALLOWED_NN`.
+Anything else raises ``ValueError``.
 
 When the package is installed, the files are found as the data-only subpackage
 ``vnhc_gym._hyperparams`` (``pyproject.toml`` maps it onto ``agents/hyperparams``); in a source
-checkout, in ``agents/hyperparams`` next to the ``vnhc_gym`` folder (:func:`hyperparams_dir`).
+checkout, in ``agents/hyperparams`` next to the ``vnhc_gym`` folder (`hyperparams_dir`).
 Importing this module imports neither torch nor Stable-Baselines3: resolving ``nn.<Name>``
-imports ``torch.nn``, :func:`make_schedule` imports Stable-Baselines3.
+imports ``torch.nn``, `make_schedule` imports Stable-Baselines3.
 """
 
 from __future__ import annotations
@@ -89,7 +90,7 @@ def parse_literal(text: str) -> Any:
 
     Accepts ``dict(key=value, ...)`` (keyword arguments only), ``{"key": value}`` with string
     keys, lists, tuples, numbers (with a sign), strings, ``True``/``False``/``None`` and
-    ``nn.<Name>`` with ``Name`` in :data:`ALLOWED_NN` (resolved to the ``torch.nn`` class, which
+    ``nn.<Name>`` with ``Name`` in `ALLOWED_NN` (resolved to the ``torch.nn`` class, which
     imports torch), nested in any way, e.g.
     ``"dict(net_arch=dict(pi=[64, 64], vf=[64, 64]), activation_fn=nn.Tanh, log_std_init=-0.5)"``.
 
@@ -263,7 +264,7 @@ def load_hyperparams(algo: str, env_id: str, path: str | os.PathLike[str] | None
     RL Zoo's conversions are applied without evaluating code:
 
     * ``policy_kwargs`` (and ``replay_buffer_kwargs``, ``monitor_kwargs``) given as
-      ``"dict(...)"`` strings: parsed by :func:`parse_literal` into dicts, ``nn.Tanh`` etc. into
+      ``"dict(...)"`` strings: parsed by `parse_literal` into dicts, ``nn.Tanh`` etc. into
       the torch classes;
     * ``normalize``: ``True``/``False``, or a dict of ``VecNormalize`` arguments (from a mapping or
       a ``"dict(norm_obs=False, norm_reward=True)"`` string).  RL Zoo also passes the algorithm's
@@ -271,8 +272,8 @@ def load_hyperparams(algo: str, env_id: str, path: str | os.PathLike[str] | None
     * ``env_wrapper`` (and ``vec_env_wrapper``, ``callback``): a list of ``(import path, kwargs)``
       pairs, from any of RL Zoo's forms (a name, a list of names, ``{name: {kwargs}}`` items);
       ``None`` gives ``[]``.  Nothing is imported;
-    * schedules (:data:`SCHEDULE_KEYS`): numbers, or strings ``lin_<value>`` that are checked and
-      left as strings (turn them into SB3 schedules with :func:`make_schedule`);
+    * schedules (`SCHEDULE_KEYS`): numbers, or strings ``lin_<value>`` that are checked and
+      left as strings (turn them into SB3 schedules with `make_schedule`);
     * ``n_timesteps``, ``n_envs`` as ints, ``train_freq`` lists as tuples.
 
     Every other key is returned as YAML gives it.  ``ValueError`` for a malformed value,

@@ -1,19 +1,19 @@
 """One training run: an SB3 agent on a task's native vector environment, validated while it learns
 and tested on held-out episodes at the end.
 
-``vnhc-gym train --algo ppo --env usv --scenario nominal --seed 0`` (or :func:`train`) reads the
+``vnhc-gym train --algo ppo --env usv --scenario nominal --seed 0`` (or [`train`][vnhc_gym.training.train]) reads the
 algorithm's RL Zoo file (``agents/hyperparams/<algo>.yml``), trains, and writes to ``--out``:
 
 * ``<stem>.zip``: the SB3 model with the best validation score (the mean ``score`` of the
   validation episodes: the return over the fixed horizon per step, a failed episode's remaining
-  steps counting 0, :mod:`vnhc_gym.evaluation.metrics`);
+  steps counting 0, `vnhc_gym.evaluation.metrics`);
 * ``<stem>-final.zip``: the model at the end of training;
 * ``<stem>.json``: the sidecar: the run's configuration and hyperparameters, the package version and
   code fingerprint, the learning curve (env steps, wall time, validation IQMs), the observation
   statistics, and the test evaluation.
 
 ``--algo`` is ``ppo`` (from scratch), ``residual_ppo`` (PPO through
-:class:`~vnhc_gym.wrappers.ResidualVectorAction` on top of the geometric law; the network's last
+[`ResidualVectorAction`][vnhc_gym.wrappers.ResidualVectorAction] on top of the geometric law; the network's last
 layer starts at zero, so the untrained agent is the law) or ``recurrent_ppo`` (sb3-contrib's
 RecurrentPPO, an LSTM policy).  Validation episodes use seeds from 5 000, test episodes from 10 000;
 training episodes use small seeds, so the three never overlap.
@@ -161,7 +161,7 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
     """Train one agent (see the module docstring) and return its sidecar.
 
     ``train(algo="ppo", env="usv", n_timesteps=200_000)`` works too (keyword arguments are
-    :class:`TrainConfig` fields).  ``log`` gets one line per validation.
+    [`TrainConfig`][vnhc_gym.training.TrainConfig] fields).  ``log`` gets one line per validation.
     """
     import torch
 

@@ -2,16 +2,16 @@
 
 The agent's action ``a`` is a correction of the base controller's: the environment receives
 ``clip(base(obs) + scale * clip(a, -1, 1), -1, 1)``, so an agent that outputs 0 *is* the base
-controller.  :class:`ResidualAction` wraps a single environment (what RL Zoo's ``env_wrapper``
-builds); :class:`ResidualVectorAction` wraps a native vector environment (what ``vnhc-gym train``
-uses); :class:`ResidualPolicy` runs a trained residual agent with its base on the plain environment.
-With ``observe_base=True`` the base action is appended to the observation, so the agent sees what
-it corrects.
+controller.  [`ResidualAction`][vnhc_gym.wrappers.ResidualAction] wraps a single environment (what
+RL Zoo's ``env_wrapper`` builds); [`ResidualVectorAction`][vnhc_gym.wrappers.ResidualVectorAction]
+wraps a native vector environment (what ``vnhc-gym train`` uses); `ResidualPolicy` runs a trained
+residual agent with its base on the plain environment.  With ``observe_base=True`` the base action
+is appended to the observation, so the agent sees what it corrects.
 
 A base with internal state (an observer, an adaptive law) predicts its next estimate with the force
 it applied; all three classes tell it the action the environment really received
-(``base.applied(...)``, :meth:`vnhc_gym.baselines.Policy.applied`), so exploration noise in the
-residual does not corrupt its estimate.
+(``base.applied(...)``, [`vnhc_gym.baselines.Policy.applied`][vnhc_gym.baselines.Policy.applied]),
+so exploration noise in the residual does not corrupt its estimate.
 """
 
 from __future__ import annotations
@@ -72,8 +72,9 @@ class ResidualAction(gym.Wrapper):
         Action space ``Box(-1, 1)`` and a ``Box`` observation space (else ``TypeError``).
     base : object with ``predict``, or a name, optional
         The base controller (SB3 interface), or the name of a classical baseline
-        (``"law"``, ``"tuned_law"``, ``"observer"``, ``"adaptive"``: :data:`vnhc_gym.baselines.CLASSICAL`);
-        default ``"law"``, the geometric law with gain ``gain``.
+        (``"law"``, ``"tuned_law"``, ``"observer"``, ``"adaptive"``:
+        [`vnhc_gym.baselines.CLASSICAL`][vnhc_gym.baselines.CLASSICAL]); default ``"law"``, the
+        geometric law with gain ``gain``.
     scale : float, default 0.2
         Largest residual, as a fraction of the action range (0 to 1).
     gain : float, optional
@@ -121,7 +122,8 @@ class ResidualAction(gym.Wrapper):
 
 
 class ResidualVectorAction(VectorWrapper):
-    """:class:`ResidualAction` for a vector environment (one ``predict`` of the base for all rows).
+    """[`ResidualAction`][vnhc_gym.wrappers.ResidualAction] for a vector environment (one
+    ``predict`` of the base for all rows).
 
     Works in every autoreset mode: after a step, a sub-environment that starts a new episode (its
     returned observation is a reset's) tells a stateful base so through ``episode_start``.

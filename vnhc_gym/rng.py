@@ -8,7 +8,8 @@ calls to ``numpy.random.Generator`` methods, and a row's draws depend only on it
 vector env seeded with ``s`` equals ``N`` single envs seeded with ``s, s + 1, ...`` draw for draw.
 Call the draws as ``uniform_ab(rng, r, low, high)`` with ``r`` the row.
 
-:func:`psin`, :func:`pcos` and :func:`psincos` are the sine and cosine of the generated system
+[`psin`][vnhc_gym.mechanics.numerics.psin], [`pcos`][vnhc_gym.mechanics.numerics.pcos] and
+[`psincos`][vnhc_gym.mechanics.numerics.psincos] are the sine and cosine of the generated system
 code (inline polynomials, the same bits on every machine).
 
 Why SplitMix64: one ``uint64`` of state, a few integer operations per draw, and it passes
@@ -26,7 +27,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from vnhc_gym.mechanics.kernels import pcos, psin, psincos
+from vnhc_gym.mechanics.numerics import pcos, psin, psincos
 
 __all__ = ["draw_mismatch", "entropy_states", "next_u64", "normal_pair", "pcos", "psin", "psincos", "seed_states",
            "sign", "uniform", "uniform_ab"]

@@ -2,9 +2,9 @@
 
 This file is the template of every generated system module.  Code generation copies its text and
 replaces the import between the ``system`` markers below with one system's expression functions
-and constants (:func:`vnhc_gym.mechanics.codegen.generate_source`); everything else is the same
+and constants (`vnhc_gym.mechanics.codegen.generate_source`); everything else is the same
 for every system.  Imported as it is, it runs on the placeholder system of
-:mod:`vnhc_gym.mechanics._placeholder` (a point mass on a line), which the tests use.
+`vnhc_gym.mechanics._placeholder_system` (a point mass on a line), which the tests use.
 
 States are rows ``s = (q, qd)`` of length ``2 N``; parameters rows of length ``NP``; controls rows
 of length ``M``.  Every batched kernel takes ``(B, ...)`` arrays and loops over rows; the per-row
@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from vnhc_gym.mechanics.kernels import (  # noqa: F401  (generated code: psin, pcos)
+from vnhc_gym.mechanics.numerics import (  # noqa: F401  (generated code: psin, pcos)
     FLAG_NONFINITE,
     FLAG_SINGULAR,
     pcos,
@@ -31,7 +31,7 @@ from vnhc_gym.mechanics.kernels import (  # noqa: F401  (generated code: psin, p
 
 # isort: split
 # --- system: begin (code generation writes one system's functions and constants here)
-from vnhc_gym.mechanics._placeholder import (  # noqa: F401
+from vnhc_gym.mechanics._placeholder_system import (  # noqa: F401
     BLOCK,
     HOLONOMIC,
     NAME,
@@ -61,7 +61,7 @@ from vnhc_gym.mechanics._placeholder import (  # noqa: F401
 # --- system: end
 # isort: split
 
-#: Feedback modes of :func:`rk4_row`: the held control only; ``u*`` re-evaluated at every RK4 stage
+#: Feedback modes of `rk4_row`: the held control only; ``u*`` re-evaluated at every RK4 stage
 #: (the theorem's setting); ``u*`` evaluated once at the start of the control period and held.
 OPEN, CONTINUOUS, SAMPLED = 0, 1, 2
 
@@ -69,7 +69,7 @@ OPEN, CONTINUOUS, SAMPLED = 0, 1, 2
 
 
 class Work(NamedTuple):
-    """Scratch vectors of one row's RK4 step and law (views of one allocation, see :func:`work`)."""
+    """Scratch vectors of one row's RK4 step and law (views of one allocation, see `work`)."""
 
     x: np.ndarray  # the state being integrated (2N)
     tmp: np.ndarray  # an RK4 stage's state (2N)
@@ -89,7 +89,7 @@ class Work(NamedTuple):
 
 @njit(cache=True)
 def work() -> Work:
-    """Scratch space for :func:`rk4_row` and :func:`law_row`: one allocation, reused row after row."""
+    """Scratch space for `rk4_row` and `law_row`: one allocation, reused row after row."""
     n2 = 2 * N
     flat = np.empty(6 * n2 + 7 * M + M * BLOCK)
     o = 6 * n2
@@ -126,7 +126,7 @@ def law_row(s, p, k, tol, w, u):
 
     Returns ``FLAG_SINGULAR`` (and ``u = 0``) where the input fields are (nearly) tangent to the
     constraint: where the measure of ``transversality`` is not above ``tol`` (or not finite), else 0.
-    Overwrites ``w.k4`` (see :func:`_sizes`).
+    Overwrites ``w.k4`` (see `_sizes`).
     """
     sizes = _sizes(w)
     _cgn(s, p, w.C, w.G, sizes)
@@ -169,7 +169,7 @@ def rk4_row(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, w):
 
     Why two integrators: a held control (``OPEN``, ``SAMPLED``) needs no law inside the stages; kept
     out of that loop, the law's calls no longer slow it, and a step kernel that calls
-    :func:`rk4_held_row` directly in the ``OPEN`` mode runs about twice as fast per row.
+    `rk4_held_row` directly in the ``OPEN`` mode runs about twice as fast per row.
     """
     if mode == OPEN:
         return rk4_held_row(s, p, uh, lo, hi, dt, substeps, out, u_out, w)
@@ -178,7 +178,7 @@ def rk4_row(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, w):
 
 @njit(cache=True, error_model="numpy")
 def _rk4_feedback(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, w):
-    """:func:`rk4_row` with the law: held from the period's start (``SAMPLED``) or at every stage."""
+    """`rk4_row` with the law: held from the period's start (``SAMPLED``) or at every stage."""
     if mode == SAMPLED:
         flag = law_row(s, pl, k, tol, w, w.law)
         for a in range(M):
@@ -189,7 +189,7 @@ def _rk4_feedback(s, p, pl, uh, k, mode, lo, hi, dt, substeps, tol, out, u_out, 
 
 @njit(cache=True, error_model="numpy")
 def rk4_held_row(s, p, uh, lo, hi, dt, substeps, out, u_out, w):
-    """:func:`rk4_row` with the control ``clip(uh)`` held over the period (the ``OPEN`` mode)."""
+    """`rk4_row` with the control ``clip(uh)`` held over the period (the ``OPEN`` mode)."""
     x = w.x
     tmp = w.tmp
     k1 = w.k1
@@ -222,7 +222,7 @@ def rk4_held_row(s, p, uh, lo, hi, dt, substeps, out, u_out, w):
 
 @njit(cache=True, error_model="numpy")
 def _rk4_continuous(s, p, pl, uh, k, lo, hi, dt, substeps, tol, out, u_out, w):
-    """:func:`rk4_row` with the control ``clip(u*(stage) + uh)`` of every stage."""
+    """`rk4_row` with the control ``clip(u*(stage) + uh)`` of every stage."""
     x = w.x
     tmp = w.tmp
     k1 = w.k1
@@ -298,7 +298,7 @@ def _store(x, out):
 
 @njit(cache=True)
 def rk4(S, P, PL, U, K, mode, lo, hi, dt, substeps, tol, out, u_out, flags):
-    """:func:`rk4_row` for every row: ``S`` (B, 2N), ``P``/``PL`` (B, NP), ``U`` (B, M), ``K`` (B, NG)."""
+    """`rk4_row` for every row: ``S`` (B, 2N), ``P``/``PL`` (B, NP), ``U`` (B, M), ``K`` (B, NG)."""
     w = work()
     for r in range(S.shape[0]):
         flags[r] = rk4_row(S[r], P[r], PL[r], U[r], K[r], mode, lo, hi, dt, substeps, tol, out[r], u_out[r], w)

@@ -1,11 +1,11 @@
-"""The system that :mod:`vnhc_gym.mechanics._template` runs on when imported as a module of its own.
+"""The system that `vnhc_gym.mechanics._system_template` runs on when imported as a module of its own.
 
 A unit point mass on a line, pushed by one force, held to ``phi = qd`` (come to rest): ``n = m = 1``,
 ``qdd = u / mass``, ``C = 1 / mass``, ``G = 0``, one extra output (the position).  The squared sizes
 of the singular test are ``J M^-1 J^T = 1 / mass`` (``J = d phi/d qd = 1``) and
 ``Y M Y = 1 / mass`` (``Y = 1 / mass``), so its measure is 1.  Code
 generation replaces the import of this module with the same names written out for a real
-system (:func:`vnhc_gym.mechanics.codegen.generate_source`), so these functions document the
+system (`vnhc_gym.mechanics.codegen.generate_source`), so these functions document the
 signatures that the generated ones have.
 """
 
@@ -37,19 +37,19 @@ def _accel(s: np.ndarray, p: np.ndarray, u: np.ndarray, ds: np.ndarray) -> None:
 @njit(cache=True, error_model="numpy")
 def _accel_at(s: np.ndarray, p: np.ndarray, u: np.ndarray, ds: np.ndarray, si: np.ndarray, pi: np.ndarray,
               ui: np.ndarray) -> None:
-    """:func:`_accel` reading ``s[si]``, ``p[pi]``, ``u[ui]`` and writing ``ds[si[N:]]`` (the unit of a fleet)."""
+    """`_accel` reading ``s[si]``, ``p[pi]``, ``u[ui]`` and writing ``ds[si[N:]]`` (the unit of a fleet)."""
     ds[si[1]] = u[ui[0]] / p[pi[0]]
 
 
 @njit(cache=True, error_model="numpy")
 def _phi_at(s: np.ndarray, p: np.ndarray, out: np.ndarray, si: np.ndarray, pi: np.ndarray, oi: np.ndarray) -> None:
-    """:func:`_phi` reading ``s[si]``, ``p[pi]`` and writing ``out[oi]``."""
+    """`_phi` reading ``s[si]``, ``p[pi]`` and writing ``out[oi]``."""
     out[oi[0]] = s[si[1]]
 
 
 @njit(cache=True, error_model="numpy")
 def _aux_at(s: np.ndarray, p: np.ndarray, out: np.ndarray, si: np.ndarray, pi: np.ndarray, oi: np.ndarray) -> None:
-    """:func:`_aux` reading ``s[si]``, ``p[pi]`` and writing ``out[oi]``."""
+    """`_aux` reading ``s[si]``, ``p[pi]`` and writing ``out[oi]``."""
     out[oi[0]] = s[si[0]]
 
 
@@ -89,7 +89,7 @@ def _tn(s: np.ndarray, p: np.ndarray, sizes: np.ndarray) -> None:
 
 @njit(cache=True, error_model="numpy")
 def _cgn(s: np.ndarray, p: np.ndarray, C: np.ndarray, G: np.ndarray, sizes: np.ndarray) -> None:
-    """:func:`_cg` and :func:`_tn`: what the law needs besides ``phi``."""
+    """`_cg` and `_tn`: what the law needs besides ``phi``."""
     _cg(s, p, C, G)
     _tn(s, p, sizes)
 

@@ -1,9 +1,11 @@
 """Numba helpers of the generated kernels: status flags, the transversality measure of the law's
 singular test, a small linear solve and inline sin/cos.
 
-Task authors may call :func:`psin`, :func:`pcos` and :func:`psincos` in their own kernels (they are
-re-exported by :mod:`vnhc_gym.kernels`): the generated system code uses them for every sine and
-cosine, so a task that computes the same quantity with them gets the same bits.
+Task authors may call [`psin`][vnhc_gym.mechanics.numerics.psin],
+[`pcos`][vnhc_gym.mechanics.numerics.pcos] and [`psincos`][vnhc_gym.mechanics.numerics.psincos] in
+their own kernels (they are re-exported by [`vnhc_gym.rng`][vnhc_gym.rng]): the generated system
+code uses them for every sine and cosine, so a task that computes the same quantity with them gets
+the same bits.
 """
 
 from __future__ import annotations
@@ -37,14 +39,14 @@ def transversality(c: np.ndarray, sizes: np.ndarray) -> float:
     ``sizes`` holds their squared sizes in the metric: ``sizes[b] = J_b M^-1 J_b^T`` and
     ``sizes[m + a] = Y^a . M Y^a`` (``2 m`` entries).  The measure is the smallest singular value
     of the normalised matrix ``C^{ba} / (|J_b| |Y^a|)``, over the diagonal blocks of ``C`` (stored
-    by block rows in ``c``, shape ``(m, k)``, as in :func:`solve_blocks`).  Each normalised entry
+    by block rows in ``c``, shape ``(m, k)``, as in `solve_blocks`).  Each normalised entry
     is the cosine of the angle, in the metric, between the gradient of ``phi^b`` and ``Y^a``
     (Cauchy-Schwarz), so the measure lies in ``[0, 1]`` up to rounding; it is 0 where the inputs
     are tangent to the constraint, and it does not change when masses, units, constraint
     components or controls are rescaled.
 
-    Closed forms for blocks of size 1 (:func:`transversality_diagonal`) and 2
-    (:func:`transversality_pairs`), one-sided Jacobi rotations for larger blocks.  Returns 0 when
+    Closed forms for blocks of size 1 (`transversality_diagonal`) and 2
+    (`transversality_pairs`), one-sided Jacobi rotations for larger blocks.  Returns 0 when
     a row of ``d phi/d qd`` or an input field has zero size (that row or column of ``C`` is zero
     too), NaN when an entry or a size is not finite.  Nothing is modified.
     """
@@ -58,7 +60,7 @@ def transversality(c: np.ndarray, sizes: np.ndarray) -> float:
 
 @njit(cache=True, error_model="numpy", inline="always")
 def transversality_diagonal(c: np.ndarray, sizes: np.ndarray) -> float:
-    """:func:`transversality` of a diagonal ``C`` (``c`` of shape ``(m, 1)``): the smallest
+    """`transversality` of a diagonal ``C`` (``c`` of shape ``(m, 1)``): the smallest
     ``|C^{bb}| / (|J_b| |Y^b|)``."""
     m = c.shape[0]
     rho = np.inf
@@ -75,7 +77,7 @@ def transversality_diagonal(c: np.ndarray, sizes: np.ndarray) -> float:
 
 @njit(cache=True, error_model="numpy", inline="always")
 def transversality_pairs(c: np.ndarray, sizes: np.ndarray) -> float:
-    """:func:`transversality` of a ``C`` made of ``2 x 2`` diagonal blocks (``c`` of shape ``(m, 2)``).
+    """`transversality` of a ``C`` made of ``2 x 2`` diagonal blocks (``c`` of shape ``(m, 2)``).
 
     For a ``2 x 2`` matrix ``sigma_min = |det| / sigma_max`` with
     ``sigma_max^2 = (F + sqrt(F^2 - 4 det^2)) / 2`` and ``F`` the squared Frobenius norm; the
@@ -123,7 +125,7 @@ def _degenerate(c, sizes):
 
 @njit(cache=True, error_model="numpy")
 def _transversality_jacobi(c, sizes):
-    """:func:`transversality` for blocks of any size, by one-sided Jacobi rotations."""
+    """`transversality` for blocks of any size, by one-sided Jacobi rotations."""
     if not _finite(c, sizes):
         return np.nan
     m, k = c.shape
@@ -142,7 +144,7 @@ def _transversality_jacobi(c, sizes):
 @njit(cache=True, error_model="numpy")
 def _jacobi_smin(c, sizes, t, blk):
     """Smallest singular value of the normalised block at rows ``blk .. blk + k - 1`` (see
-    :func:`transversality`), by one-sided Jacobi rotations of its columns in ``t`` (``k x k``)."""
+    `transversality`), by one-sided Jacobi rotations of its columns in ``t`` (``k x k``)."""
     m, k = c.shape
     for i in range(k):
         si = math.sqrt(sizes[blk + i])
@@ -193,7 +195,7 @@ def solve_blocks(c: np.ndarray, b: np.ndarray, x: np.ndarray, tol: float) -> int
     Returns ``FLAG_SINGULAR`` (and ``x = 0``) when a pivot is not larger than ``tol * max|C|``
     (relative to the matrix's own scale, so multiplying ``C`` by any nonzero number never changes
     the verdict), when ``C`` is zero, or when an entry is not finite; else 0.  The law decides
-    whether ``C`` is singular with :func:`transversality` first and then calls this with
+    whether ``C`` is singular with `transversality` first and then calls this with
     ``tol = 0`` (only an exactly zero pivot is refused): the same arithmetic, whatever the test.
     """
     m, k = c.shape

@@ -1,0 +1,250 @@
+"""``vnhc_gym/SpacecraftPoint``: a rigid spacecraft made to spin about its axis 3, held vertical."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from vnhc_gym.envs.config import EnvConfig, TaskOptions, option
+from vnhc_gym.envs.env import ConstraintEnv
+from vnhc_gym.envs.rendering import Link, Scene, axes_3d
+from vnhc_gym.rng import psincos, sign, uniform_ab
+from vnhc_gym.systems.spacecraft import make_spacecraft
+from vnhc_gym.tasks.base import Task
+
+Array = NDArray[np.float64]
+__all__ = ["SpacecraftOptions", "SpacecraftPointEnv", "SpacecraftTask"]
+
+OBS_RATE_SCALE = 2.0  #: rad/s: body rates and phi are divided by this in the observation
+RATE_EXCEEDED = 1  #: termination code: the body rate |omega| exceeded max_rate
+
+
+class Args(NamedTuple):
+    """The spacecraft hooks' constants."""
+
+    max_rate: float
+
+
+@njit(cache=True, inline="always")
+def _body_rate(state: np.ndarray) -> tuple[float, float, float]:
+    """``omega = E(q) qd`` for ZYX angles ``q = (psi, theta, varphi)``."""
+    st, ct = psincos(state[1])
+    sp, cp = psincos(state[2])
+    return (-st * state[3] + state[5], ct * sp * state[3] + cp * state[4], ct * cp * state[3] - sp * state[4])
+
+
+@njit(cache=True)
+def draw(rng: np.ndarray, r: int, stage: int, state: np.ndarray, params: np.ndarray, aux: np.ndarray,
+         args: Args) -> None:
+    """Any yaw, pitch and roll within 45 degrees (a tilt of axis 3 up to 60 degrees), and a body
+    rate off the constraint by 0.2-1 rad/s in each component, either way."""
+    state[0] = uniform_ab(rng, r, -math.pi, math.pi)
+    state[1] = uniform_ab(rng, r, -0.25 * math.pi, 0.25 * math.pi)
+    state[2] = uniform_ab(rng, r, -0.25 * math.pi, 0.25 * math.pi)
+    st, ct = psincos(state[1])
+    sp, cp = psincos(state[2])
+    z1, z2 = -st, ct * sp
+    spin, lam = params[3], params[4]
+    w1 = -lam * z2 + uniform_ab(rng, r, 0.2, 1.0) * sign(rng, r)
+    w2 = lam * z1 + uniform_ab(rng, r, 0.2, 1.0) * sign(rng, r)
+    w3 = spin + uniform_ab(rng, r, 0.2, 1.0) * sign(rng, r)
+    # qd = E^-1 omega, in closed form (|theta| < pi/2 here).
+    state[3] = (sp * w2 + cp * w3) / ct
+    state[4] = cp * w2 - sp * w3
+    state[5] = w1 + st * state[3]
+
+
+@njit(cache=True, inline="always")
+def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs: np.ndarray,
+            phi_sf: np.ndarray) -> int:
+    """The vertical in body axes, the body rates and ``phi``."""
+    st, ct = psincos(state[1])
+    sp, cp = psincos(state[2])
+    w1, w2, w3 = _body_rate(state)
+    obs[0] = -st
+    obs[1] = ct * sp
+    obs[2] = ct * cp
+    obs[3] = w1 / OBS_RATE_SCALE
+    obs[4] = w2 / OBS_RATE_SCALE
+    obs[5] = w3 / OBS_RATE_SCALE
+    for b in range(3):
+        obs[6 + b] = phi[b] / OBS_RATE_SCALE
+    return RATE_EXCEEDED if math.sqrt(w1 * w1 + w2 * w2 + w3 * w3) > args.max_rate else 0
+
+
+@dataclass(frozen=True)
+class SpacecraftOptions(TaskOptions):
+    """The spacecraft's own keyword arguments."""
+
+    inertia_1: float = option(1.0, "``J1`` (kg m^2)", low=0.0, low_open=True, high=1e9)
+    inertia_2: float = option(1.5, "``J2`` (kg m^2)", low=0.0, low_open=True, high=1e9)
+    inertia_3: float = option(2.0, "``J3``, the spin axis (kg m^2)", low=0.0, low_open=True, high=1e9)
+    spin_rate: float = option(1.0, "``Omega`` (rad/s; either sign, or 0)", low=-100.0, high=100.0)
+    pointing_rate: float = option(1.0, "``lam`` (1/s), how fast axis 3 rises", low=0.0, low_open=True, high=100.0)
+    max_pitch: float = option(1.396, "termination pitch (rad), short of gimbal lock at pi/2", low=0.0,
+                              low_open=True, high=1.5)
+    max_rate: float = option(10.0, "termination body rate (rad/s)", low=0.0, low_open=True, high=1e6)
+
+
+def _rotation(state: Array) -> Array:
+    """``R = Rz(psi) Ry(theta) Rx(varphi)`` of one state."""
+    (cz, sz), (cy, sy), (cx, sx) = ((math.cos(a), math.sin(a)) for a in state[:3])
+    rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
+    return rz @ ry @ rx
+
+
+class SpacecraftTask(Task):
+    """A spacecraft held to ``omega = lam e3 x z + Omega e3`` (see `SpacecraftPointEnv`)."""
+
+    name = "spacecraft"
+    Options = SpacecraftOptions
+    reasons = {"rate_exceeded": RATE_EXCEEDED}
+    #: Body torques (N m) of action 1: the law with k = 5 needs at most (7.6, 11.8, 10.5) N m at
+    #: the start of a nominal episode (500 seeds).
+    default_force_bound = (10.0, 15.0, 15.0)
+    force_units = ("N m", "N m", "N m")
+    default_impulse_scale = 0.3
+    #: Width of the bounded reward (rad/s): the law averages 0.98 over an episode, a start 0.006.
+    reward_sigma = 0.1
+    phi_units = "rad/s"
+    phi_sf_meaning = "the body-rate error from pointing and spinning, over 1 rad/s"
+    angles = (0, 1, 2)
+    uncertain = ("J1", "J2", "J3")
+
+    def __init__(self, config: EnvConfig, options: SpacecraftOptions) -> None:
+        super().__init__(config, options)
+        o = options
+        self.model = make_spacecraft()
+        self.nominal = self.model.params(J1=o.inertia_1, J2=o.inertia_2, J3=o.inertia_3, Omega=o.spin_rate,
+                                         lam=o.pointing_rate)
+        self.obs_dim = 9
+        self.impulse_mask = np.ones(3)
+        self.args = Args(max_rate=o.max_rate)
+        self.limits = (("gimbal_lock", 1, o.max_pitch),)
+
+    def controller_inputs(self, obs: Array) -> tuple[Array, Array]:
+        """The state rebuilt from the observation, at yaw 0 (a turn about the vertical changes
+        neither the dynamics nor the law): ``theta = -asin(z1)``, ``varphi = atan2(z2, z3)``,
+        ``qd = E^-1 omega``; and the nominal parameters."""
+        o = np.asarray(obs, dtype=np.float64)
+        th = -np.arcsin(np.clip(o[:, 0], -1.0, 1.0))
+        ph = np.arctan2(o[:, 1], o[:, 2])
+        w = OBS_RATE_SCALE * o[:, 3:6]
+        st, ct, sp, cp = np.sin(th), np.cos(th), np.sin(ph), np.cos(ph)
+        psid = (sp * w[:, 1] + cp * w[:, 2]) / ct
+        st_ = np.stack([np.zeros_like(th), th, ph, psid, cp * w[:, 1] - sp * w[:, 2], w[:, 0] + st * psid], axis=1)
+        return st_, np.tile(self.nominal, (o.shape[0], 1))
+
+    def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
+        """The predicted states at yaw 0, the frame of `controller_inputs`."""
+        s = states.copy()
+        s[:, 0] = 0.0
+        return s, params
+
+    def scene(self, state: Array, phi: Array, params: Array) -> Scene:
+        """The body's three axes (x red, y green, z blue) in an oblique view, beside the vertical."""
+        vertical = Link((0.0, 0.0), (0.0, 1.6), color=(160, 160, 160), width=1)
+        s = np.asarray(state, dtype=np.float64)
+        axes = axes_3d(_rotation(s), length=1.2) if np.all(np.isfinite(s[:3])) else []
+        return Scene(links=[vertical, *axes], phi=list(phi), phi_units=self.phi_units, center=(0.0, 0.3),
+                     extent=4.0)
+
+
+class SpacecraftPointEnv(ConstraintEnv):
+    r"""A rigid spacecraft made to spin about its axis 3 while that axis swings up to the vertical.
+
+    ## Description
+
+    A rigid body with principal inertias ``J1, J2, J3`` (distinct: the free body has gyroscopic
+    coupling and an unstable intermediate axis), its attitude in ZYX Euler angles ``(psi, theta,
+    varphi)``, turned by three body torques. With ``z`` the inertial vertical in body axes and
+    ``omega`` the body rate, the task is the three-component virtual constraint
+
+    $$\phi = \omega - \lambda\, e_3 \times z - \Omega\, e_3 = 0 :$$
+
+    spin about body axis 3 at ``Omega`` while the transverse rate turns axis 3 towards the
+    vertical. The decoupling matrix is constant, ``C = J^-1``: what is hard is cancelling the
+    gyroscopic torque ``omega x J omega`` and the kinematics of the vertical. On the constraint the
+    tilt obeys ``tan(tilt / 2) ~ exp(-lam t)`` whatever the inertia, and the pitch never exceeds
+    the starting tilt, so the law stays clear of the Euler angles' singularity at ``theta = ±pi/2``
+    (the chart's, not the law's: the transversality measure is 1 at every attitude).
+
+    ## Action Space
+
+    ``Box(-1, 1, (3,), float32)``: body torques ``tau_i = bound_i * a_i`` with ``bound = (10, 15,
+    15)`` N m (``force_bound``), held over ``dt``.
+
+    ## Observation Space
+
+    ``Box(-obs_clip, obs_clip, (9,), float32)``:
+
+    | index | observation                                   |
+    |-------|-----------------------------------------------|
+    | 0-2   | ``z = R^T e_z`` (the vertical in body axes)   |
+    | 3-5   | ``omega / 2`` (rad/s), body rates             |
+    | 6-8   | ``phi / 2`` (rad/s)                           |
+
+    The yaw is not observed: a turn about the vertical changes neither the dynamics nor the task.
+
+    ## Rewards
+
+    ``r = exp(-mean_b |phi^b| / (1 rad/s) / reward_sigma) - action_cost * mean(a^2)`` in ``[0, 1]``
+    (``-v1``); ``-v0``: ``clip(-mean_b |phi^b| / phi_scale, -reward_clip, 0)``.
+
+    ## Starting State
+
+    Yaw ``U(-pi, pi)``, pitch and roll ``U(-pi/4, pi/4)`` (a tilt up to 60 degrees); body rate
+    ``omega = Omega e3 + lam e3 x z + phi0`` with ``phi0_b = ±U(0.2, 1.0)`` rad/s.
+
+    ## Episode End
+
+    * Truncation: the time limit (400 steps of 0.05 s with ``gym.make``).
+    * Termination: a non-finite state, ``|theta| > max_pitch`` (``"gimbal_lock"``: near the
+      singularity of the angles) or ``|omega| > max_rate`` (``"rate_exceeded"``).
+
+    ## Arguments
+
+    | argument          | default   | meaning                                            |
+    |-------------------|-----------|----------------------------------------------------|
+    | ``scenario``      | "nominal" | see Scenarios                                      |
+    | ``inertia_1``     | 1.0       | ``J1`` (kg m^2)                                    |
+    | ``inertia_2``     | 1.5       | ``J2`` (kg m^2)                                    |
+    | ``inertia_3``     | 2.0       | ``J3``, the spin axis (kg m^2)                     |
+    | ``spin_rate``     | 1.0       | ``Omega`` (rad/s; either sign, or 0)               |
+    | ``pointing_rate`` | 1.0       | ``lam`` (1/s), how fast axis 3 rises               |
+    | ``max_pitch``     | 1.396     | termination pitch (rad), 80 degrees                |
+    | ``max_rate``      | 10.0      | termination body rate (rad/s)                      |
+    | ``force_bound``   | (10, 15, 15) N m | one number sets all three                   |
+    | ``reward_sigma``  | 0.1       | width (rad/s) of the bounded reward                |
+    | ``impulse_scale`` | 0.3       | std (rad/s) of a kick to each angle rate           |
+    | ``render_mode``   | None      | ``"rgb_array"`` or ``"human"``                     |
+
+    ``dt``, ``substeps``, ``reward``, ``phi_scale``, ``reward_clip``, ``action_cost``,
+    ``param_mismatch``, ``obs_noise``, ``impulse_prob`` and ``obs_clip`` are as for every task.
+
+    ## Scenarios
+
+    ``nominal``; ``saturated`` (bounds x 0.05); ``mismatch`` (true ``J1, J2, J3`` x ``U(0.7,
+    1.3)``); ``noisy`` (observation noise 0.02); ``coarse`` (``dt = 0.1``, 4 substeps);
+    ``disturbance`` (0.3 rad/s kicks to the angle rates with probability 0.05 per step).
+
+    ## Info
+
+    ``phi`` (``(3,)``, rad/s), ``abs_phi``, ``abs_phi_sf``, ``state`` (``psi, theta, varphi, psid,
+    thetad, varphid``), ``force`` (N m), ``time``; ``params`` at reset (``J1, J2, J3, Omega,
+    lam``); ``termination_reason`` when terminated.
+
+    ## Version History
+
+    * v1: bounded reward; v0: the raw reward (as for every task).
+    """
+
+    task_class = SpacecraftTask
+    task: SpacecraftTask
