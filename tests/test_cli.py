@@ -56,7 +56,7 @@ def test_subcommand_help(sub: str, capsys: pytest.CaptureFixture[str]) -> None:
     ["train", "--seed", "abc"],
     ["train", "--scenario", "stormy"],
     ["benchmark", "--scenarios", "stormy"],
-    ["benchmark", "--tasks", "cartpole"],
+    ["benchmark", "--tasks", "no_such_task"],
     ["sweep", "--executor", "slurm"],
 ], ids=lambda a: " ".join(a) or "nothing")
 def test_argument_errors_are_usage_errors(args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
@@ -68,7 +68,7 @@ def test_argument_errors_are_usage_errors(args: list[str], capsys: pytest.Captur
 
 
 @pytest.mark.parametrize("args", [
-    ["train", "--env", "cartpole", "-n", "10"],
+    ["train", "--env", "no_such_task", "-n", "10"],
     ["train", "-n", "10", "-params", "n_steps"],
     ["sweep", "--algos", "sac", "--out", "{tmp}"],
     ["benchmark", "--episodes", "0", "--no-agents", "--out", "{tmp}"],

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import numbers
 import warnings
+from dataclasses import fields
 from typing import Any
 
 import gymnasium as gym
@@ -141,8 +142,17 @@ def option_strategies(default: Any) -> tuple[Any, Any]:
 
 
 def keyword_table(env_id: str) -> dict[str, tuple[Any, Any]]:
-    options = task_of_env_id(env_id).task_class.Options.defaults()
-    return {**COMMON, **{name: option_strategies(default) for name, default in options.items()}}
+    """Every keyword's strategies; a task option's valid values stay inside its declared bounds."""
+    table = dict(COMMON)
+    for f in fields(task_of_env_id(env_id).task_class.Options):
+        valid, invalid = option_strategies(f.default)
+        check = f.metadata.get("check") or {}
+        if check.get("kind") == "number" and isinstance(f.default, float):
+            lo, hi = check.get("low"), check.get("high")
+            valid = valid.map(lambda v, lo=lo, hi=hi: min(max(v, lo if lo is not None else v), hi if hi is not None
+                                                          else v))
+        table[f.name] = (valid, invalid)
+    return table
 
 
 def draw_kwargs(data: st.DataObject, env_id: str) -> tuple[dict, list[str]]:

@@ -210,7 +210,7 @@ def test_configuration_errors(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="algo"):
         train(TrainConfig(algo="sac", out=str(tmp_path)))
     with pytest.raises(ValueError, match="unknown environment"):
-        train(TrainConfig(env="cartpole", out=str(tmp_path)))
+        train(TrainConfig(env="no_such_task", out=str(tmp_path)))
     assert set(ALGOS) >= {"ppo", "residual_ppo"}
     for name, entry in TASKS.items():
         full = f"vnhc_gym/{entry.env_name}-v1"
@@ -219,7 +219,7 @@ def test_configuration_errors(tmp_path: Path) -> None:
         assert resolve_env_id(full) == full
         assert resolve_env_id(f"vnhc_gym/{entry.env_name}-v0") == f"vnhc_gym/{entry.env_name}-v0"
     with pytest.raises(ValueError, match="unknown environment"):
-        resolve_env_id("cartpole")
+        resolve_env_id("no_such_task")
 
 
 def test_code_fingerprint_is_stable() -> None:

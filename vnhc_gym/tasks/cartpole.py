@@ -66,9 +66,11 @@ class CartPoleOptions(TaskOptions):
     friction: float = option(0.1, "``b_c``, viscous friction of the cart (N s/m)", low=0.0, high=1e6)
     rise_rate: float = option(2.0, "``lam`` (1/s)", low=0.0, low_open=True, high=100.0)
     speed_gain: float = option(0.3, "``mu`` (rad/m), with ``mu 4 l / 3 < 1``", low=0.0, high=100.0)
-    position_gain: float = option(0.2, "``nu`` (rad/(m s)), with ``nu < lam mu``", low=0.0, high=100.0)
-    max_angle: float = option(1.2, "termination angle (rad), below ``arccos(mu 4 l / 3) - 0.1``", low=0.0,
-                              low_open=True, high=1.5)
+    position_gain: float = option(0.2, "``nu`` (rad/(m s)); on the constraint the cart comes to rest when "
+                                  "``nu < lam mu``", low=0.0, high=100.0)
+    max_angle: float | None = option(None, "termination angle (rad), at most ``arccos(mu 4 l / 3) - 0.1``; "
+                                     "None: 1.2 or that bound if smaller", low=0.0, low_open=True, high=1.5,
+                                     allow_none=True)
     track_limit: float = option(4.0, "termination cart position (m)", low=0.0, low_open=True, high=1e6)
     max_speed: float = option(10.0, "termination cart speed (m/s)", low=0.0, low_open=True, high=1e6)
     max_rate: float = option(10.0, "termination pole rate (rad/s)", low=0.0, low_open=True, high=1e6)
@@ -98,11 +100,9 @@ class CartPoleTask(Task):
         if not o.speed_gain * ell < 1.0:
             raise ValueError(f"speed_gain * 4 pole_length / 3 must be < 1 (else the law is singular at the upright), "
                              f"got {o.speed_gain * ell:g}")
-        if not o.position_gain < o.rise_rate * o.speed_gain or (o.speed_gain == 0.0 and o.position_gain > 0.0):
-            raise ValueError(f"position_gain must be < rise_rate * speed_gain = {o.rise_rate * o.speed_gain:g} "
-                             f"(else the cart does not come to rest on the constraint), got {o.position_gain!r}")
         singular = math.acos(o.speed_gain * ell)
-        if not o.max_angle <= singular - 0.1:
+        max_angle = min(1.2, singular - 0.1) if o.max_angle is None else o.max_angle
+        if not max_angle <= singular - 0.1:
             raise ValueError(f"max_angle must be <= {singular - 0.1:.4g} rad, 0.1 rad inside the angle "
                              f"arccos(speed_gain 4 pole_length / 3) where the law is singular, got {o.max_angle!r}")
         self.model = make_cartpole()
@@ -114,7 +114,7 @@ class CartPoleTask(Task):
         self.obs_dim = 6
         self.impulse_mask = np.array([0.0, 1.0])  # kicks on the pole's rate
         self.args = Args()
-        self.limits = (("pole_fell", 1, o.max_angle), ("cart_off_track", 0, o.track_limit),
+        self.limits = (("pole_fell", 1, max_angle), ("cart_off_track", 0, o.track_limit),
                        ("speed_exceeded", 2, o.max_speed), ("turn_rate_exceeded", 3, o.max_rate))
 
     def scene(self, state: Array, phi: Array, params: Array) -> Scene:
@@ -203,8 +203,8 @@ class CartPoleBalanceEnv(ConstraintEnv):
     | ``friction``      | 0.1       | ``b_c``, viscous friction of the cart (N s/m), >= 0   |
     | ``rise_rate``     | 2.0       | ``lam`` (1/s)                                         |
     | ``speed_gain``    | 0.3       | ``mu`` (rad/m), ``mu 4 l / 3 < 1``                    |
-    | ``position_gain`` | 0.2       | ``nu`` (rad/(m s)), ``nu < lam mu``                   |
-    | ``max_angle``     | 1.2       | termination angle (rad), 0.1 below ``arccos(mu 4 l / 3)`` at most |
+    | ``position_gain`` | 0.2       | ``nu`` (rad/(m s)); the cart comes to rest when ``nu < lam mu`` |
+    | ``max_angle``     | None      | termination angle (rad): 1.2, or 0.1 inside ``arccos(mu 4 l / 3)`` |
     | ``track_limit``   | 4.0       | termination cart position (m)                         |
     | ``max_speed``     | 10.0      | termination cart speed (m/s)                          |
     | ``max_rate``      | 10.0      | termination pole rate (rad/s)                         |
