@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
+from vnhc_gym.baselines.geometric import DEFAULT_GAIN, StatefulLaw
 from vnhc_gym.envs.config import check_number
 
 __all__ = ["AdaptiveController"]
@@ -25,7 +25,7 @@ __all__ = ["AdaptiveController"]
 Array = NDArray[np.float64]
 
 
-class AdaptiveController(GeometricController):
+class AdaptiveController(StatefulLaw):
     """The stabilising law with online estimates of the task's uncertain parameters.
 
     Parameters
@@ -62,18 +62,6 @@ class AdaptiveController(GeometricController):
 
     def reset(self) -> None:
         self._theta = None
-
-    def reset_rows(self, rows: NDArray[np.bool_]) -> None:
-        if self._fresh is not None and self._fresh.shape == rows.shape:
-            self._fresh |= rows
-
-    def applied(self, action: ArrayLike) -> None:
-        """Predict the next state with the force the environment received (see
-        [`Policy.applied`][vnhc_gym.baselines.Policy.applied])."""
-        if self._u is None:
-            return
-        a = np.asarray(action, dtype=np.float64).reshape(self._u.shape)
-        self._u = np.clip(np.where(np.isfinite(a), a, 0.0), -1.0, 1.0) * self.force_bound
 
     def _with(self, params: Array, theta: Array) -> Array:
         p = params.copy()

@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from vnhc_gym.baselines.policy import Policy, spaces_of, task_of
 from vnhc_gym.mechanics import sampled_control
 
-__all__ = ["DEFAULT_GAIN", "GeometricController"]
+__all__ = ["DEFAULT_GAIN", "GeometricController", "StatefulLaw"]
 
 #: Default gain k of the baseline.  The paper uses K = I with continuous feedback; held over the
 #: environments' 0.05 s control period, k = 5 (time constant 0.2 s, four control periods,
@@ -130,3 +130,27 @@ class GeometricController(Policy):
         self.n_saturated += int(saturated.sum())
         self.n_rows += a.shape[0]
         return np.clip(a, -1.0, 1.0)
+
+
+class StatefulLaw(GeometricController):
+    """The law with an internal estimate carried from step to step (the observer and adaptive laws).
+
+    A subclass keeps ``_u`` (the force applied since its last estimate, ``(B, m)``, or None before
+    the first one) and ``_fresh`` (rows whose next observation starts a new episode); this class
+    keeps both in step with the environment.
+    """
+
+    _u: NDArray[np.float64] | None = None
+    _fresh: NDArray[np.bool_] | None = None
+
+    def reset_rows(self, rows: NDArray[np.bool_]) -> None:
+        if self._fresh is not None and self._fresh.shape == rows.shape:
+            self._fresh |= rows
+
+    def applied(self, action: ArrayLike) -> None:
+        """Predict the next state with the force the environment received (see
+        [`Policy.applied`][vnhc_gym.baselines.Policy.applied])."""
+        if self._u is None:
+            return
+        a = np.asarray(action, dtype=np.float64).reshape(self._u.shape)
+        self._u = np.clip(np.where(np.isfinite(a), a, 0.0), -1.0, 1.0) * self.force_bound

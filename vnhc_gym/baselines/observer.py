@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
+from vnhc_gym.baselines.geometric import DEFAULT_GAIN, StatefulLaw
 from vnhc_gym.envs.config import check_number
 
 __all__ = ["ObserverController"]
@@ -28,7 +28,7 @@ __all__ = ["ObserverController"]
 Array = NDArray[np.float64]
 
 
-class ObserverController(GeometricController):
+class ObserverController(StatefulLaw):
     """The stabilising law on a state estimate (see the module docstring).
 
     Parameters
@@ -67,18 +67,6 @@ class ObserverController(GeometricController):
 
     def reset(self) -> None:
         self._x = None
-
-    def reset_rows(self, rows: NDArray[np.bool_]) -> None:
-        if self._fresh is not None and self._fresh.shape == rows.shape:
-            self._fresh |= rows
-
-    def applied(self, action: ArrayLike) -> None:
-        """Predict the next state with the force the environment received (see
-        [`Policy.applied`][vnhc_gym.baselines.Policy.applied])."""
-        if self._u is None:
-            return
-        a = np.asarray(action, dtype=np.float64).reshape(self._u.shape)
-        self._u = np.clip(np.where(np.isfinite(a), a, 0.0), -1.0, 1.0) * self.force_bound
 
     def estimate(self, obs: Array) -> tuple[Array, Array]:
         """Update the estimates with a batch of observations and return ``(states, params)``."""
