@@ -1,19 +1,26 @@
 """PPO training throughput through the native vector environments: env-steps per second at several
 batch sizes, with the rollout (environment + policy inference) and update (gradient steps) shares,
-and the effect of torch's thread count.  Writes results/bench_train.md and .json.
+and the effect of torch's thread count, alone and with two trainings at once.  Writes
+results/bench_train.md and .json.
 
-    python experiments/bench_train.py              # about 4 minutes on 2 cores
+    python experiments/bench_train.py              # about 6 minutes on 2 cores
     python experiments/bench_train.py --quick      # a smoke run
 
 The environment kernels run on one thread (numba, no thread pool), so only torch's threads can
-compete for the cores; at 256 environments the run compares one torch thread with two (the
-default of ``vnhc-gym train``).
+compete for the cores; at 256 environments the run compares one torch thread with two.  The
+concurrent case is the user's whole job: ``vnhc-gym train`` processes (start-up, training,
+validation and test included), one alone and two started together, with one torch thread each
+(the default) and with two (the oversubscribed case: four spinning threads on two cores).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -60,6 +67,23 @@ def measure(task: str, n_envs: int, threads: int, steps: int) -> dict[str, float
             "steps_per_s": done / wall, "rollout_share": clock.rollout / wall}
 
 
+def concurrent(jobs: int, threads: int, steps: int, task: str = "usv") -> dict[str, float]:
+    """Wall time of ``jobs`` ``vnhc-gym train`` processes started together (``threads`` torch threads each)."""
+    exe = shutil.which("vnhc-gym")
+    cmd = [exe] if exe else [sys.executable, "-c", "import sys; from vnhc_gym.cli import main; sys.exit(main())"]
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        procs = [subprocess.Popen([*cmd, "train", "--algo", "ppo", "--env", task, "-n", str(steps), "--seed", str(i),
+                                   "--threads", str(threads), "--out", str(Path(tmp) / str(i))],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) for i in range(jobs)]
+        for p in procs:
+            _, err = p.communicate()
+            if p.returncode != 0:
+                raise RuntimeError(f"vnhc-gym train failed:\n{err}")
+        wall = time.perf_counter() - t0
+    return {"task": task, "jobs": jobs, "threads": threads, "steps": steps, "wall": wall}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer steps and sizes (CI)")
@@ -76,13 +100,25 @@ def main() -> None:
                 print(f"{task:9s} n_envs={n:5d} threads={threads}  {r['steps_per_s'] / 1e3:7.1f} k env-steps/s  "
                       f"rollout {100 * r['rollout_share']:4.1f} %  update {100 * (1 - r['rollout_share']):4.1f} %",
                       flush=True)
+    together = []
+    for threads in ((1,) if args.quick else (1, 2)):
+        for jobs in (1, 2):
+            together.append(concurrent(jobs, threads, 32_768 if args.quick else 300_000))
+            r = together[-1]
+            print(f"{jobs} x vnhc-gym train, {threads} torch thread(s) each: {r['wall']:6.1f} s", flush=True)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "bench_train.json").write_text(json.dumps(rows, indent=1))
+    (out / "bench_train.json").write_text(json.dumps({"throughput": rows, "concurrent": together}, indent=1))
     lines = ["| task | n_envs | torch threads | k env-steps/s | rollout share | update share |",
              "|---|---:|---:|---:|---:|---:|"]
     lines += [f"| {r['task']} | {r['n_envs']} | {r['threads']} | {r['steps_per_s'] / 1e3:.1f} | "
               f"{100 * r['rollout_share']:.0f} % | {100 * (1 - r['rollout_share']):.0f} % |" for r in rows]
+    solo = {r["threads"]: r["wall"] for r in together if r["jobs"] == 1}
+    lines += ["", f"`vnhc-gym train --algo ppo --env {together[0]['task']} -n {together[0]['steps']}`, whole "
+              "processes (start-up, training, validation, test):", "",
+              "| runs started together | torch threads each | wall s | x one run alone (1 thread) |",
+              "|---:|---:|---:|---:|"]
+    lines += [f"| {r['jobs']} | {r['threads']} | {r['wall']:.1f} | {r['wall'] / solo[1]:.2f} |" for r in together]
     (out / "bench_train.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -16,6 +16,11 @@ learning curves, the verdict figure, a performance profile) to ``<out>/report``.
     python experiments/train_compare.py --large --out results/large   # more seeds, longer budgets
     python experiments/train_compare.py --executor ray --address <head>:6379   # on a cluster
     python experiments/train_compare.py --publish docs/results/train_compare   # copy the report there
+    python experiments/train_compare.py --records docs/results/train_compare/runs.jsonl.gz   # continue it
+
+``--publish`` also writes every finished run's record (``runs.jsonl.gz``: the test episodes'
+metrics, learning curves and settings) beside the report, so that anyone can recompute the
+statistics; ``--records`` starts from such a file (its runs are skipped, and included in the report).
 """
 
 from __future__ import annotations
@@ -24,7 +29,16 @@ import argparse
 import shutil
 from pathlib import Path
 
-from vnhc_gym.sweep import CLASSICAL_ALGOS, LEARNED_ALGOS, REFERENCE_ALGOS, grid, report, run_sweep
+from vnhc_gym.sweep import (
+    CLASSICAL_ALGOS,
+    LEARNED_ALGOS,
+    REFERENCE_ALGOS,
+    grid,
+    report,
+    restore_records,
+    run_sweep,
+    save_records,
+)
 from vnhc_gym.tasks import TASKS
 
 SCENARIOS = ["nominal", "saturated", "mismatch", "noisy", "coarse", "disturbance"]
@@ -48,6 +62,8 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--publish", metavar="DIR", help="copy the report's tables and figures to DIR, and put its "
                     "headline table in the README (between the results markers)")
+    ap.add_argument("--records", metavar="FILE", help="start from the run records of a published report "
+                    "(runs.jsonl.gz): those runs are skipped and included in the report")
     ap.add_argument("--ship", action="store_true",
                     help="copy the median-seed nominal agent of each task and algorithm into vnhc_gym/agents_zoo and "
                          "the classical settings chosen per cell into vnhc_gym/baselines/settings.json")
@@ -66,6 +82,12 @@ def main() -> None:
         jobs = args.jobs
     if args.algos:
         specs = [s for s in specs if s.algo in args.algos]
+    # The classical and reference runs first (a few seconds each): every residual run then reads its
+    # cell's best classical baseline from them instead of tuning it again, and the tuned settings of
+    # every task are saved before the first learned run starts.
+    specs.sort(key=lambda s: s.learned)
+    if args.records:
+        print(f"{restore_records(args.records, args.out)} runs restored from {args.records}")
     run_sweep(specs, args.out, executor=args.executor, jobs=jobs, threads=1, address=args.address)
     report(args.out)
     if args.publish:
@@ -73,7 +95,8 @@ def main() -> None:
         dest.mkdir(parents=True, exist_ok=True)
         for f in (Path(args.out) / "report").iterdir():
             shutil.copy(f, dest / f.name)
-        print(f"report copied to {dest}")
+        n = save_records(args.out, dest / "runs.jsonl.gz")
+        print(f"report and {n} run records copied to {dest}")
         readme = Path(__file__).resolve().parent.parent / "README.md"
         text = readme.read_text()
         begin, end = "<!-- results: begin -->", "<!-- results: end -->"
@@ -115,7 +138,11 @@ def ship(out: Path) -> None:
             scores = [float(np.mean(r["test"]["metrics"]["score"])) for r in rs]
             median = rs[int(np.argsort(scores)[len(scores) // 2])]
             stem = f"{task}-{algo}"
-            shutil.copy(out / "runs" / f"{median['name']}.zip", root / "agents_zoo" / f"{stem}.zip")
+            model = out / "runs" / f"{median['name']}.zip"
+            if not model.exists():  # a run restored from published records has no model file
+                print(f"not shipping {stem}: {model} is not here (rerun that seed to make it)")
+                continue
+            shutil.copy(model, root / "agents_zoo" / f"{stem}.zip")
             side = {**median, "name": algo, "shipped_from": median["name"]}
             (root / "agents_zoo" / f"{stem}.json").write_text(json.dumps(side, indent=1) + "\n")
             print(f"shipped {stem} (seed {median['spec']['seed']})")

@@ -450,3 +450,23 @@ def test_tuning_cannot_be_pointed_at_test_seeds(monkeypatch: pytest.MonkeyPatch)
         except ValueError:
             continue
         assert all(seed + n - 1 < TEST_SEED for seed, n in log.calls), log.calls
+
+
+def test_shipped_settings_cover_every_task_scenario_and_baseline() -> None:
+    """Every shipped task has tuned settings in every scenario for every classical baseline and the
+    oracle, each setting one of its tuning grid's candidates (so the benchmark's "tuned" rows are
+    tuned, and a new task cannot silently fall back to the k = 5 law)."""
+    from vnhc_gym.baselines.tuning import CLASSICAL, REFERENCE
+    from vnhc_gym.benchmark import settings
+    from vnhc_gym.envs.config import SCENARIOS
+    from vnhc_gym.tasks import shipped_tasks
+
+    table = settings()
+    for task in shipped_tasks():
+        for scenario in SCENARIOS:
+            cell = table.get(task, {}).get(scenario)
+            assert cell is not None, f"no tuned settings for {task}/{scenario}"
+            for name, (_, grid) in {**CLASSICAL, **REFERENCE}.items():
+                assert set(cell[name]) == set(grid), (task, scenario, name)
+                for key, value in cell[name].items():
+                    assert value in grid[key], (task, scenario, name, key, value)

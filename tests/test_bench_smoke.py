@@ -61,8 +61,12 @@ def test_bench_train_quick_prints_env_steps_per_second(tmp_path: Path) -> None:
     assert sorted((task, int(n)) for task, n, _, _ in lines) == [("flocking", 8), ("flocking", 64), ("usv", 8),
                                                                   ("usv", 64)]
     assert all(float(rate) > 0 for *_, rate in lines)
-    rows = json.loads((out / "bench_train.json").read_text())
+    res = json.loads((out / "bench_train.json").read_text())
+    rows = res["throughput"]
     assert len(rows) == 4 and all(r["steps_per_s"] > 0 and 0 < r["rollout_share"] < 1 for r in rows)
+    # The user's whole job, one run alone and two started together, one torch thread each.
+    assert [(r["jobs"], r["threads"]) for r in res["concurrent"]] == [(1, 1), (2, 1)]
+    assert all(r["wall"] > 0 for r in res["concurrent"])
     assert (out / "bench_train.md").read_text() in proc.stdout
 
 

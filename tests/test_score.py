@@ -281,3 +281,48 @@ def test_parity_is_counted_from_the_agents_own_start(tmp_path: Path) -> None:
     assert rows["ppo"]["poi"] == 0.0 and rows["residual_ppo"]["poi"] > 0.5
     verdict = {v["env"]: v for v in rep["verdicts"]}["usv"]
     assert verdict["best_learned"] == "residual_ppo" and verdict["best_classical"] == "tuned_law"
+
+
+def test_the_best_learned_agent_is_chosen_on_validation_episodes(tmp_path: Path) -> None:
+    """The agent with the better *test* score but the worse validation score is not the cell's best
+    learned agent: the test episodes never pick the rows they then judge."""
+    from vnhc_gym.sweep import report
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    sides = [
+        _side("tuned_law", 0, [0.90] * 10, validation=0.90),
+        _side("ppo", 0, [0.99] * 10, [_point(0, 0.1, 0.0, 0.0), _point(100, 0.80, 0.7, 1.0)]),
+        _side("residual_ppo", 0, [0.91] * 10, [_point(0, 0.90, 0.88, 0.0), _point(100, 0.95, 0.94, 1.0)]),
+    ]
+    for s in sides:
+        (runs / f"{s['name']}.json").write_text(json.dumps(s))
+    rep = report(tmp_path, reps=200, log=lambda s: None)
+    rows = {r["algo"]: r for r in rep["rows"]}
+    assert rows["ppo"]["score"] > rows["residual_ppo"]["score"]
+    assert rows["ppo"]["validation_score"] == 0.80 and rows["residual_ppo"]["validation_score"] == 0.95
+    assert rep["verdicts"][0]["best_learned"] == "residual_ppo"
+
+
+def test_published_records_restore_the_report(tmp_path: Path) -> None:
+    """`save_records` then `restore_records` elsewhere gives the same report; a restored run is
+    finished for a sweep, and a run already there is not overwritten."""
+    from vnhc_gym.sweep import RunSpec, report, restore_records, save_records, status
+
+    spec = RunSpec("ppo", "usv", "nominal", seed=0)
+    runs = tmp_path / "a" / "runs"
+    runs.mkdir(parents=True)
+    sides = [_side("tuned_law", 0, [0.90] * 10, validation=0.90),
+             {**_side("ppo", 0, [0.5, 0.7] * 5, [_point(0, 0.1, 0.0, 0.0)]), "name": spec.stem}]
+    for s in sides:
+        (runs / f"{s['name']}.json").write_text(json.dumps(s))
+    assert save_records(tmp_path / "a", tmp_path / "runs.jsonl.gz") == 2
+    assert restore_records(tmp_path / "runs.jsonl.gz", tmp_path / "b") == 2
+    assert status(spec, tmp_path / "b") == "done"
+    a = report(tmp_path / "a", reps=100, log=lambda s: None)["rows"]
+    b = report(tmp_path / "b", reps=100, log=lambda s: None)["rows"]
+    assert a == b and len(a) == 2
+    mine = tmp_path / "b" / "runs" / f"{spec.stem}.json"
+    mine.write_text(json.dumps({**sides[1], "code": "mine"}))
+    assert restore_records(tmp_path / "runs.jsonl.gz", tmp_path / "b") == 0
+    assert json.loads(mine.read_text())["code"] == "mine"

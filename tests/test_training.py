@@ -211,6 +211,9 @@ def test_configuration_errors(tmp_path: Path) -> None:
         train(TrainConfig(algo="sac", out=str(tmp_path)))
     with pytest.raises(ValueError, match="unknown environment"):
         train(TrainConfig(env="no_such_task", out=str(tmp_path)))
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ValueError, match="threads must be a positive integer"):
+            train(TrainConfig(threads=bad, out=str(tmp_path)))  # type: ignore[arg-type]
     assert set(ALGOS) >= {"ppo", "residual_ppo"}
     for name, entry in TASKS.items():
         full = f"vnhc_gym/{entry.env_name}-v1"

@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["CLASSICAL_ALGOS", "LEARNED_ALGOS", "REFERENCE_ALGOS", "RunSpec", "grid", "load_runs", "report",
-           "run_one", "run_sweep", "status"]
+           "restore_records", "run_one", "run_sweep", "save_records", "status"]
 
 #: Learned agents (trained with vnhc_gym.training), classical baselines (vnhc_gym.baselines.tuning)
 #: and the headroom reference (not a controller one could field: never a cell's best classical).
@@ -288,6 +288,39 @@ def load_runs(out: str | Path) -> list[dict[str, Any]]:
     return [json.loads(p.read_text()) for p in sorted((Path(out) / "runs").glob("*.json"))]
 
 
+def save_records(out: str | Path, path: str | Path) -> int:
+    """Write every finished run's sidecar of ``out`` into one gzipped JSON-lines file ``path``: the
+    raw records a report is made from (every test episode's metrics, the learning curves, the
+    settings), small enough to publish beside it.  Returns the number of records."""
+    import gzip
+
+    runs = load_runs(out)
+    with gzip.open(path, "wt", encoding="utf-8") as fh:
+        for r in runs:
+            fh.write(json.dumps(r, sort_keys=True) + "\n")
+    return len(runs)
+
+
+def restore_records(path: str | Path, out: str | Path) -> int:
+    """Write each record of a `save_records` file as a finished run's sidecar under ``out/runs``
+    (unless that run is already there), so that a sweep over ``out`` skips those runs and its report
+    includes them: how a published grid is continued, or its report remade, on another machine.
+    The restored runs have no model files.  Returns the number of sidecars written."""
+    import gzip
+
+    runs = Path(out) / "runs"
+    runs.mkdir(parents=True, exist_ok=True)
+    written = 0
+    with gzip.open(path, "rt", encoding="utf-8") as fh:
+        for line in fh:
+            r = json.loads(line)
+            dest = runs / f"{r['name']}.json"
+            if not dest.exists():
+                _atomic_json(dest, r)
+                written += 1
+    return written
+
+
 @dataclass
 class Cell:
     env: str
@@ -315,6 +348,14 @@ def _parity(r: dict[str, Any], target: float, residual: bool) -> tuple[float | N
     return (None, None) if hit is None else (float(hit["steps"]), float(hit["wall"]))
 
 
+def _validation_score(r: dict[str, Any]) -> float:
+    """A run's validation score: a classical run's tuned setting's, a learned run's best checkpoint's
+    (the model its test evaluates).  Choices between algorithms read this, never the test episodes."""
+    if "validation_score" in r:
+        return float(r["validation_score"])
+    return max((float(p["score"]) for p in r.get("curve", []) if "score" in p), default=-math.inf)
+
+
 def report(out: str | Path, reps: int = 2000, log: Callable[[str], None] = print) -> dict[str, Any]:
     """Tables and figures from the run outputs alone (wherever they ran), in ``out/report``.
 
@@ -322,10 +363,11 @@ def report(out: str | Path, reps: int = 2000, log: Callable[[str], None] = print
     (pooled over training seeds for learned agents) with its 95 % stratified-bootstrap interval, the
     success rate (episodes that reached the time limit), and the diagnostics (the IQM of the
     completed steps' ``mean |phi~|``, the termination-aware mean ``|phi~|``).  The cell's best
-    classical baseline is the one with the highest *validation* score (chosen without the test
-    episodes); the oracle is the headroom reference.  For each learned agent: the probability that
-    one of its episodes scores above one of the best classical baseline's, with its interval, and
-    the median env steps and seconds to parity (`_parity`) over its runs, or "not reached".
+    classical baseline and its best learned agent are the ones with the highest *validation* score
+    (chosen without the test episodes); the oracle is the headroom reference.  For each learned
+    agent: the probability that one of its episodes scores above one of the best classical
+    baseline's, with its interval, and the median env steps and seconds to parity (`_parity`) over
+    its runs, or "not reached".
     Files: ``comparison.{json,csv,md}`` (every row), ``headline.md`` (one line a cell: the oracle,
     the best classical, the best learned and the verdict), ``verdict.png`` (the same at a glance),
     ``learning_curves_<env>.png`` and ``performance_profile.png``.
@@ -360,6 +402,7 @@ def report(out: str | Path, reps: int = 2000, log: Callable[[str], None] = print
                 "success": float(np.mean(_episodes(rs, "success"))),
                 "iqm_abs_phi_sf": stats.iqm(_episodes(rs, "mean_abs_phi_sf")),
                 "horizon_abs_phi_sf": float(np.mean(_episodes(rs, "horizon_abs_phi_sf"))),
+                "validation_score": float(np.mean([_validation_score(r) for r in rs])),
                 "kind": "learned" if algo in LEARNED_ALGOS else "reference" if algo in REFERENCE_ALGOS else "classical",
                 "best_classical": best_name,
                 "settings": rs[0].get("settings"),
@@ -455,8 +498,8 @@ def _cell_rows(rows: list[dict[str, Any]]) -> list[tuple[str, str, dict[str, dic
 
 def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, Any]]:
     """``headline.md``: a line a cell: the oracle, the best classical baseline, the best learned agent
-    (the highest test score), each with the score's interval and success rate, the probability of
-    improvement, steps and seconds to parity, and the verdict."""
+    (the highest mean validation score over its runs), each with the score's interval and success
+    rate, the probability of improvement, steps and seconds to parity, and the verdict."""
     lines = ["Mean score over held-out test episodes (the return over the fixed horizon per step, in [0, 1]; "
              "a failed episode's remaining steps count 0), its 95 % bootstrap interval and the success rate "
              "(episodes that reached the time limit). P: the probability that an episode of the best learned agent "
@@ -468,7 +511,9 @@ def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, An
         oracle = cell.get("oracle")
         best = next((r for r in cell.values() if r["algo"] == r["best_classical"]), None)
         learned = [r for r in cell.values() if r["kind"] == "learned"]
-        top = max(learned, key=lambda r: r["score"]) if learned else None
+        # Chosen on validation episodes, like the best classical baseline: picking the agent with the
+        # best test score would bias its probability of improvement upwards.
+        top = max(learned, key=lambda r: r["validation_score"]) if learned else None
         winner, words = verdict(top, best)
         verdicts.append({"env": env, "scenario": scenario, "verdict": words, "winner": winner,
                          "best_classical": best["algo"] if best else None, "best_learned": top["algo"] if top else None,

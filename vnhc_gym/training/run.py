@@ -19,7 +19,11 @@ RecurrentPPO, an LSTM policy).  Validation episodes use seeds from 5 000, test e
 training episodes use small seeds, so the three never overlap.
 
 Threads: the environment kernels run on one thread (numba, no thread pool); torch gets ``threads``
-threads (default 2), which measured fastest for one run of these small networks on two cores.
+threads, 1 by default.  A second thread makes one run alone on an idle two-core machine up to about
+1.4x faster, but when another job shares the cores torch's spinning threads fight for them: two
+runs started together with two threads each took 4x the time of one run, and many times longer
+under heavier load, against 1.1x with one thread each (``experiments/bench_train.py`` measures both
+cases).
 """
 
 from __future__ import annotations
@@ -84,7 +88,7 @@ class TrainConfig:
     eval_points: int = 20  #: validation evaluations over the run (plus one at step 0)
     eval_episodes: int = 10  #: validation episodes per evaluation (seeds from VALIDATION_SEED)
     test_episodes: int = 20  #: test episodes at the end (seeds from TEST_SEED)
-    threads: int = 2  #: torch threads (measured fastest with one run on two cores: experiments/bench_train.py)
+    threads: int = 1  #: torch threads: 1 never oversubscribes the cores (experiments/bench_train.py)
     hyperparams: str | None = None  #: another RL Zoo file for the algorithm
     overrides: dict[str, Any] = field(default_factory=dict)  #: hyperparameters that replace the file's
     env_kwargs: dict[str, Any] = field(default_factory=dict)  #: environment arguments of the training envs only
@@ -168,7 +172,9 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
     cfg = cfg or TrainConfig(**kwargs)
     if cfg.algo not in ALGOS:
         raise ValueError(f"algo must be one of {list(ALGOS)}, got {cfg.algo!r}")
-    torch.set_num_threads(int(cfg.threads))
+    if isinstance(cfg.threads, bool) or not isinstance(cfg.threads, int) or cfg.threads < 1:
+        raise ValueError(f"threads must be a positive integer, got {cfg.threads!r}")
+    torch.set_num_threads(cfg.threads)
     env_id = resolve_env_id(cfg.env)
     hp = load_hyperparams(cfg.algo, env_id, cfg.hyperparams)
     hp.update(cfg.overrides)
