@@ -31,7 +31,6 @@ from pathlib import Path
 
 from vnhc_gym.sweep import (
     CLASSICAL_ALGOS,
-    LEARNED_ALGOS,
     REFERENCE_ALGOS,
     grid,
     report,
@@ -45,7 +44,9 @@ SCENARIOS = ["nominal", "saturated", "mismatch", "noisy", "coarse", "disturbance
 #: Five seeds where the law is weakest and on nominal, three elsewhere.
 SEEDS = {"nominal": range(5), "noisy": range(5), "mismatch": range(5), "disturbance": range(5),
          "saturated": range(3), "coarse": range(3)}
-ALGOS = [*REFERENCE_ALGOS, *CLASSICAL_ALGOS, *LEARNED_ALGOS]
+#: The learned agents of the grid (``vnhc_gym.sweep.LEARNED_ALGOS`` has more: any can be added here).
+LEARNERS = ["ppo", "residual_ppo", "ppo_history"]
+ALGOS = [*REFERENCE_ALGOS, *CLASSICAL_ALGOS, *LEARNERS]
 GRID = {"scenarios": SCENARIOS, "algos": ALGOS, "n_timesteps": 2_000_000}
 LARGE = {"seeds": range(10), "n_timesteps": 5_000_000}
 
@@ -128,7 +129,7 @@ def ship(out: Path) -> None:
             settings.setdefault(spec["env"], {}).setdefault(spec["scenario"], {})[spec["algo"]] = r["settings"]
     (root / "baselines" / "settings.json").write_text(json.dumps(settings, indent=1, sort_keys=True) + "\n")
     for task in TASKS:
-        for algo in LEARNED_ALGOS:
+        for algo in LEARNERS:
             rs = [r for r in runs if r["spec"]["env"] == task and r["spec"]["scenario"] == "nominal"
                   and r["spec"]["algo"] == algo]
             if len(rs) < len(SEEDS["nominal"]):  # only from a finished cell

@@ -81,3 +81,14 @@ def test_bench_envs_quick_measures_every_env(tmp_path: Path) -> None:
     assert {(r["env"], r["n"]) for r in res["vector"]} == {(e, n) for e in shipped for n in (16, 256)}
     assert all(r["native"] > 0 and r["sync"] > 0 and r["cartpole"] > 0 for r in res["vector"])
     assert (out / "bench_envs.md").read_text() in proc.stdout
+
+
+@pytest.mark.slow
+def test_bench_offpolicy_quick_measures_both_sac_implementations(tmp_path: Path) -> None:
+    pytest.importorskip("sbx")
+    out = tmp_path / "offpolicy"
+    proc = _run("bench_offpolicy.py", out)
+    rows = json.loads((out / "bench_offpolicy.json").read_text())
+    assert [r["implementation"] for r in rows] == ["stable-baselines3", "SBX"]
+    assert all(r["env_steps_per_s"] > 0 and r["gradient_steps_per_s"] > 0 for r in rows)
+    assert (out / "bench_offpolicy.md").read_text() in proc.stdout

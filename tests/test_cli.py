@@ -52,7 +52,7 @@ def test_subcommand_help(sub: str, capsys: pytest.CaptureFixture[str]) -> None:
 @pytest.mark.parametrize("args", [
     [],
     ["fly"],
-    ["train", "--algo", "sac"],
+    ["train", "--algo", "td3"],
     ["train", "--seed", "abc"],
     ["train", "--scenario", "stormy"],
     ["benchmark", "--scenarios", "stormy"],
@@ -70,7 +70,7 @@ def test_argument_errors_are_usage_errors(args: list[str], capsys: pytest.Captur
 @pytest.mark.parametrize("args", [
     ["train", "--env", "no_such_task", "-n", "10"],
     ["train", "-n", "10", "-params", "n_steps"],
-    ["sweep", "--algos", "sac", "--out", "{tmp}"],
+    ["sweep", "--algos", "td3", "--out", "{tmp}"],
     ["benchmark", "--episodes", "0", "--no-agents", "--out", "{tmp}"],
     ["sweep", "--config", "{tmp}/bad.yml", "--out", "{tmp}"],
 ], ids=["unknown-env", "bad-params", "unknown-sweep-algo", "zero-episodes", "unknown-config-key"])
@@ -102,6 +102,22 @@ def test_train_default_path_in_a_subprocess(tmp_path: Path) -> None:
     assert summary["test_mean_abs_phi_sf_iqm"] == side["test"]["summary"]["mean_abs_phi_sf"]
     assert summary["test_score"] == side["test"]["summary"]["score"]
     assert "validation score" in proc.stdout
+
+
+@pytest.mark.slow
+def test_train_sac_with_its_defaults_in_a_subprocess(tmp_path: Path) -> None:
+    """``vnhc-gym train --algo sac`` with the file's settings and a short budget (past the warm-up,
+    so gradient steps run), keeping the best and the final model."""
+    pytest.importorskip("sbx")
+    out = tmp_path / "runs"
+    proc = _run("train", "--algo", "sac", "-n", "12000", "--out", str(out), "--eval-points", "2",
+                "--test-episodes", "3")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    stem = "usv-nominal-sac-s0"
+    assert (out / f"{stem}.zip").is_file() and (out / f"{stem}-final.zip").is_file()
+    side = json.loads((out / f"{stem}.json").read_text())
+    assert side["algo"] == "sac" and side["n_envs"] == 32 and side["hyperparams"]["gradient_steps"] == 8
+    assert side["curve"][-1]["steps"] >= 12000 and side["test"]["n_episodes"] == 3
 
 
 @pytest.mark.slow

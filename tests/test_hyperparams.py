@@ -36,6 +36,9 @@ REPO = Path(__file__).resolve().parents[1]
 V1_IDS = ("vnhc_gym/USVStream-v1", "vnhc_gym/FlockingAlign-v1")
 FILES = [algo for algo in sorted(RL_ZOO_ALGO) if (hyperparams_dir() / f"{algo}.yml").is_file()]
 FILE_ENVS = [(algo, env) for algo in FILES for env in env_ids(algo)]
+#: The PPO family's files and SAC's (RL Zoo's --algo sac: stable-baselines3's SAC reads the file).
+PPO_FILES = [a for a in FILES if RL_ZOO_ALGO[a] in ("ppo", "ppo_lstm")]
+SAC_FILES = [a for a in FILES if RL_ZOO_ALGO[a] == "sac"]
 # Small runs for RL Zoo (its -params override): 2 envs x 64 steps, one minibatch of 64.
 SMALL = {"n_envs": 2, "n_steps": 64, "batch_size": 64}
 
@@ -68,8 +71,8 @@ def _wrappers_unavailable(algo: str, env_id: str) -> str | None:
 
 # --------------------------------------------------------------------------- the files
 def test_shipped_files():
-    assert {"ppo", "residual_ppo"} <= set(FILES)
-    for algo in ("ppo", "residual_ppo"):
+    assert {"ppo", "residual_ppo", "sac", "residual_sac"} <= set(FILES)
+    for algo in ("ppo", "residual_ppo", "sac", "residual_sac"):
         assert set(V1_IDS) <= set(env_ids(algo)), algo
     assert hyperparams_path("ppo") == hyperparams_dir() / "ppo.yml"
     with pytest.raises(FileNotFoundError, match="available"):
@@ -90,7 +93,23 @@ def test_file_is_rl_zoo_layout(algo):
         assert isinstance(section.get("policy_kwargs", ""), str), env_id
 
 
-@pytest.mark.parametrize(("algo", "env_id"), FILE_ENVS)
+@pytest.mark.parametrize(("algo", "env_id"), [(a, e) for a, e in FILE_ENVS if a in SAC_FILES])
+def test_load_every_sac_section(algo, env_id):
+    hp = load_hyperparams(algo, env_id)
+    assert isinstance(hp["n_timesteps"], int) and hp["n_timesteps"] > 0
+    assert isinstance(hp["n_envs"], int) and hp["n_envs"] > 0
+    assert hp["policy"] == "MlpPolicy" and "normalize" not in hp  # rewards in [0, 1], observations O(1)
+    assert hp["policy_kwargs"]["net_arch"] == [64, 64]
+    assert 0 < hp["gamma"] <= 1 and 0 < hp["tau"] < 1 and hp["batch_size"] > 0
+    assert hp["learning_starts"] >= hp["batch_size"] and hp["gradient_steps"] >= 1
+    if algo == "residual_sac":
+        assert hp["env_wrapper"] == [("vnhc_gym.wrappers.ResidualAction", {"scale": 0.1, "observe_base": True})]
+        assert hp["policy_kwargs"]["log_std_init"] < -2  # a small initial exploration noise around the base
+    else:
+        assert "env_wrapper" not in hp and "log_std_init" not in hp["policy_kwargs"]
+
+
+@pytest.mark.parametrize(("algo", "env_id"), [(a, e) for a, e in FILE_ENVS if a in PPO_FILES])
 def test_load_every_section(algo, env_id):
     nn = pytest.importorskip("torch").nn
     hp = load_hyperparams(algo, env_id)
@@ -122,15 +141,18 @@ def test_keys_are_algorithm_arguments(algo):
     import inspect
 
     if RL_ZOO_ALGO[algo] == "ppo_lstm":
-        cls = pytest.importorskip("sb3_contrib").RecurrentPPO
+        classes = [pytest.importorskip("sb3_contrib").RecurrentPPO]
+    elif RL_ZOO_ALGO[algo] == "sac":  # vnhc-gym train runs SBX's SAC, RL Zoo stable-baselines3's: both
+        classes = [pytest.importorskip("stable_baselines3").SAC, pytest.importorskip("sbx").SAC]
     else:
-        cls = pytest.importorskip("stable_baselines3").PPO
-    params = set(inspect.signature(cls.__init__).parameters)
-    for env_id in env_ids(algo):
-        hp = load_hyperparams(algo, env_id)
-        unknown = set(hp) - RL_ZOO_KEYS - params
-        assert not unknown, (algo, env_id, unknown)
-        assert hp["policy"] in cls.policy_aliases, hp["policy"]
+        classes = [pytest.importorskip("stable_baselines3").PPO]
+    for cls in classes:
+        params = set(inspect.signature(cls.__init__).parameters)
+        for env_id in env_ids(algo):
+            hp = load_hyperparams(algo, env_id)
+            unknown = set(hp) - RL_ZOO_KEYS - params
+            assert not unknown, (algo, env_id, cls, unknown)
+            assert hp["policy"] in cls.policy_aliases, hp["policy"]
 
 
 # --------------------------------------------------------------------------- the parser
@@ -377,7 +399,7 @@ with open(out_path, "w") as f:
     json.dump(results, f)
 """
 
-ZOO_CASES = [(algo, env) for algo in FILES for env in V1_IDS]
+ZOO_CASES = [(algo, env) for algo in PPO_FILES for env in V1_IDS]
 
 
 @pytest.fixture(scope="module")
@@ -461,3 +483,51 @@ def test_rl_zoo_train_command(tmp_path, algo, env_id):
     (items,) = yaml.safe_load(pairs)  # the OrderedDict's one argument: its (key, value) pairs
     assert dict(map(tuple, items)) == {**section, **SMALL}
     assert (run / "0.monitor.csv").read_text(encoding="utf-8").startswith("#")
+
+
+_ZOO_SAC_SCRIPT = r"""
+import argparse, json, sys
+import torch
+torch.set_num_threads(1)
+import vnhc_gym  # noqa: F401
+from rl_zoo3.exp_manager import ExperimentManager
+
+algo_file, env_id, small, out_path, log_folder = sys.argv[1:6]
+em = ExperimentManager(argparse.Namespace(), "sac", env_id, log_folder, n_timesteps=0, eval_freq=-1,
+                       hyperparams=json.loads(small), config=algo_file, verbose=0, device="cpu", seed=0)
+model, _ = em.setup_experiment()
+env, chain = model.get_env().envs[0], []
+while True:
+    chain.append([type(env).__name__, {a: getattr(env, a) for a in ("scale", "observe_base") if hasattr(env, a)}])
+    if not hasattr(env, "env"):
+        break
+    env = env.env
+json.dump(dict(cls=f"{type(model).__module__}.{type(model).__qualname__}", n_envs=model.get_env().num_envs,
+               net_arch=model.policy_kwargs.get("net_arch"), wrappers=chain,
+               attributes={k: getattr(model, k) for k in ("batch_size", "learning_starts", "gradient_steps", "gamma",
+                                                          "tau", "buffer_size")},
+               learning_rate=model.lr_schedule(1.0)), open(out_path, "w"))
+"""
+SMALL_SAC = {"n_envs": 2, "learning_starts": 64, "batch_size": 64, "buffer_size": 1000}
+
+
+@needs_rl_zoo
+@pytest.mark.parametrize("algo", SAC_FILES)
+def test_rl_zoo_loads_the_sac_files(tmp_path, algo):
+    """RL Zoo's ExperimentManager builds stable-baselines3's SAC from each SAC file, as the file says."""
+    env_id = V1_IDS[0]
+    out = tmp_path / "sac.json"
+    proc = subprocess.run([sys.executable, "-c", _ZOO_SAC_SCRIPT, str(hyperparams_path(algo)), env_id,
+                           json.dumps(SMALL_SAC), str(out), str(tmp_path / "logs")],
+                          cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    result = json.loads(out.read_text())
+    hp = {**load_hyperparams(algo, env_id), **SMALL_SAC}
+    assert result["cls"] == "stable_baselines3.sac.sac.SAC" and result["n_envs"] == SMALL_SAC["n_envs"]
+    assert result["net_arch"] == hp["policy_kwargs"]["net_arch"]
+    assert result["learning_rate"] == pytest.approx(hp["learning_rate"])
+    for key, value in result["attributes"].items():
+        assert value == pytest.approx(hp[key]), key
+    for path, kwargs in hp.get("env_wrapper", []):
+        found = [attrs for name, attrs in result["wrappers"] if name == path.rpartition(".")[2]]
+        assert found and found[0] == kwargs, result["wrappers"]

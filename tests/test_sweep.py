@@ -93,7 +93,7 @@ def test_grid_and_run_specs() -> None:
     assert law.key() == RunSpec("law", "usv", seed=3, n_timesteps=99).key()  # deterministic: no seed, no budget
     assert law.key() != RunSpec("law", "usv", test_episodes=5).key()
     with pytest.raises(ValueError, match="algo"):
-        RunSpec("sac", "usv")
+        RunSpec("td3", "usv")
 
 
 # --------------------------------------------------------------------------- a sweep end to end

@@ -1,5 +1,5 @@
 """Tests of vnhc_gym.training: tiny training runs (PPO, residual PPO, PPO with a history of
-observations), their files, the loaded agents as policies, and the shipped agents.
+observations, SAC and residual SAC), their files, the loaded agents as policies, and the shipped agents.
 
 A run is checked against what it claims: re-evaluating the saved agent on the recorded test seeds
 gives the recorded test numbers, the untrained residual agent's validation is the base law's own
@@ -41,8 +41,12 @@ from vnhc_gym.training.agents import ZOO_DIR, UntrustedFileWarning  # noqa: E402
 
 ENVS = env_ids("v1", shipped_only=True)
 TINY = {"n_envs": 8, "n_steps": 64, "batch_size": 128}
-#: variant -> (algo, extra overrides)
-VARIANTS = {"ppo": ("ppo", {}), "residual_ppo": ("residual_ppo", {}), "history": ("ppo", {"frame_stack": 4})}
+TINY_SAC = {"n_envs": 8, "learning_starts": 500, "batch_size": 64, "gradient_steps": 2, "buffer_size": 10_000}
+#: variant -> (algo, overrides)
+VARIANTS = {"ppo": ("ppo", TINY), "residual_ppo": ("residual_ppo", TINY),
+            "history": ("ppo", {**TINY, "frame_stack": 4}), "sac": ("sac", TINY_SAC),
+            "residual_sac": ("residual_sac", TINY_SAC)}
+RESIDUAL = ("residual_ppo", "residual_sac")
 
 
 def _short(e: str) -> str:
@@ -59,8 +63,8 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, str], tupl
     out = tmp_path_factory.mktemp("runs")
     done = {}
     for env in ENVS:
-        for variant, (algo, extra) in VARIANTS.items():
-            cfg = TrainConfig(algo=algo, env=_task_name(env), n_timesteps=2000, overrides={**TINY, **extra},
+        for variant, (algo, overrides) in VARIANTS.items():
+            cfg = TrainConfig(algo=algo, env=_task_name(env), n_timesteps=2000, overrides=dict(overrides),
                               out=str(out), eval_points=2, eval_episodes=3, test_episodes=3, threads=1,
                               name=f"{_task_name(env)}-{variant}")
             lines: list[str] = []
@@ -89,7 +93,7 @@ def test_a_run_writes_the_model_and_its_sidecar(runs: dict, case: tuple[str, str
     assert side["n_envs"] == 8 and side["n_timesteps"] == 2000 and side["seed"] == 0
     assert side["code"] == code_fingerprint() and side["version"] == vnhc_gym.__version__
     assert side["frame_stack"] == (4 if variant == "history" else 1)
-    assert (side["residual"] is not None) == (variant == "residual_ppo")
+    assert (side["residual"] is not None) == (variant in RESIDUAL)
     # The learning curve: validation at step 0, then along the run, to its end.
     curve = side["curve"]
     steps = [p["steps"] for p in curve]
@@ -161,10 +165,11 @@ def test_the_history_variant_sees_four_observations(runs: dict, env: str) -> Non
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("variant", RESIDUAL)
 @pytest.mark.parametrize("env", ENVS, ids=_short)
-def test_the_untrained_residual_agent_is_the_base_law(runs: dict, env: str) -> None:
-    """The first validation (step 0, zero-initialised last layer) is exactly the law's evaluation."""
-    _, meta = runs[(env, "residual_ppo")]
+def test_the_untrained_residual_agent_is_the_base_law(runs: dict, env: str, variant: str) -> None:
+    """The first validation (step 0, zero-initialised mean head) is exactly the law's evaluation."""
+    _, meta = runs[(env, variant)]
     first = meta["curve"][0]
     assert first["steps"] == 0
     law = evaluate(lambda e: GeometricController(e, gain=meta["residual"]["gain"]), env, "nominal", n_episodes=3,
@@ -199,6 +204,36 @@ def test_an_untrained_residual_agent_acts_like_its_base() -> None:
     venv.close()
 
 
+def test_an_untrained_residual_sac_agent_acts_like_its_base_and_explores_little() -> None:
+    """SBX's SAC actor as train() starts it: the deterministic action is the base's, and the
+    exploration noise has the file's initial log-std whatever the observation."""
+    pytest.importorskip("sbx")
+    import jax
+
+    from vnhc_gym.sb3 import GymnasiumVecEnvAdapter
+    from vnhc_gym.training.agents import algorithm_class
+    from vnhc_gym.training.run import _start_at_base
+    from vnhc_gym.wrappers import ResidualVectorAction
+
+    env = ENVS[1]
+    venv = ResidualVectorAction(gym.make_vec(env, num_envs=2, vectorization_mode="vector_entry_point"),
+                                observe_base=True, scale=0.1)
+    model = algorithm_class("residual_sac")("MlpPolicy", GymnasiumVecEnvAdapter(venv), seed=0,
+                                            policy_kwargs={"net_arch": [64, 64]})
+    _start_at_base(model, log_std=-3.0)
+    agent = AgentPolicy(model, {"algo": "residual_sac", "residual": {"scale": 0.1, "observe_base": True,
+                                                                      "gain": 5.0}}).bind(gym.make(env))
+    a = evaluate(agent, env, "noisy", n_episodes=3, seed=TEST_SEED, max_time=2.0)
+    b = evaluate(GeometricController, env, "noisy", n_episodes=3, seed=TEST_SEED, max_time=2.0)
+    np.testing.assert_array_equal(a.abs_phi, b.abs_phi)
+    obs = np.random.default_rng(0).normal(size=(16, *venv.single_observation_space.shape)).astype(np.float32)
+    dist = model.policy.actor.apply(model.policy.actor_state.params, obs)
+    std = np.asarray(dist.distribution.stddev())
+    np.testing.assert_allclose(std, np.exp(-3.0), rtol=1e-6)
+    assert jax.numpy.allclose(dist.distribution.mean(), 0.0)
+    venv.close()
+
+
 def test_validations_follow_eval_points_when_a_rollout_outgrows_the_budget(tmp_path: Path) -> None:
     """A budget smaller than one rollout (512 steps here) still validates about eval_points times."""
     meta = train(TrainConfig(algo="ppo", env=_task_name(ENVS[0]), n_timesteps=100, overrides=TINY,
@@ -208,7 +243,7 @@ def test_validations_follow_eval_points_when_a_rollout_outgrows_the_budget(tmp_p
 
 def test_configuration_errors(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="algo"):
-        train(TrainConfig(algo="sac", out=str(tmp_path)))
+        train(TrainConfig(algo="td3", out=str(tmp_path)))
     with pytest.raises(ValueError, match="unknown environment"):
         train(TrainConfig(env="no_such_task", out=str(tmp_path)))
     for bad in (0, -1, 1.5, True, "2"):

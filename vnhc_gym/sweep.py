@@ -1,11 +1,12 @@
 """A grid of training-and-evaluation runs, on one machine or a Ray cluster, resumable, and its report.
 
-A run is one `RunSpec`: a learned agent (``ppo``, ``residual_ppo``, ``ppo_history``) trained
-and tested, a classical baseline (``law``, ``tuned_law``, ``observer``, ``adaptive``) tuned on
-validation episodes and tested, or the headroom reference ``oracle`` (the law in the loop on the true
-state and parameters), tuned and tested the same way.  Every choice (settings, checkpoints, the best
-classical baseline of a cell) and every table ranks on the ``score`` (the return over the fixed
-horizon per step, failed episodes' remaining steps counting 0), higher is better.
+A run is one `RunSpec`: a learned agent (``ppo``, ``residual_ppo``, ``ppo_history``, ``sac``,
+``residual_sac``) trained and tested, a classical baseline (``law``, ``tuned_law``, ``observer``,
+``adaptive``) tuned on validation episodes and tested, or the headroom reference ``oracle`` (the
+law in the loop on the true state and parameters), tuned and tested the same way.  Every choice
+(settings, checkpoints, the best classical baseline of a cell) and every table ranks on the
+``score`` (the return over the fixed horizon per step, failed episodes' remaining steps counting
+0), higher is better.
 
 A run's outputs go to ``<out>/runs/<stem>.*`` under a stable name derived from its configuration,
 with the sidecar (``<stem>.json``) written last: a run with a sidecar is finished.  Rerunning the
@@ -35,12 +36,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["CLASSICAL_ALGOS", "LEARNED_ALGOS", "REFERENCE_ALGOS", "RunSpec", "grid", "load_runs", "report",
-           "restore_records", "run_one", "run_sweep", "save_records", "status"]
+__all__ = ["CLASSICAL_ALGOS", "LEARNED_ALGOS", "REFERENCE_ALGOS", "RESIDUAL_ALGOS", "RunSpec", "grid", "load_runs",
+           "report", "restore_records", "run_one", "run_sweep", "save_records", "status"]
 
 #: Learned agents (trained with vnhc_gym.training), classical baselines (vnhc_gym.baselines.tuning)
 #: and the headroom reference (not a controller one could field: never a cell's best classical).
-LEARNED_ALGOS = ("ppo", "residual_ppo", "ppo_history")
+LEARNED_ALGOS = ("ppo", "residual_ppo", "ppo_history", "sac", "residual_sac")
+#: Learned agents that correct a classical base (the cell's best classical baseline).
+RESIDUAL_ALGOS = ("residual_ppo", "residual_sac")
 CLASSICAL_ALGOS = ("law", "tuned_law", "observer", "adaptive")
 REFERENCE_ALGOS = ("oracle",)
 ALL_ALGOS = LEARNED_ALGOS + CLASSICAL_ALGOS + REFERENCE_ALGOS
@@ -133,7 +136,7 @@ def run_one(spec: RunSpec, out: str | Path, threads: int = 1) -> dict[str, Any]:
         overrides = dict(spec.overrides)
         if spec.algo == "ppo_history":
             overrides.setdefault("frame_stack", 4)
-        base, settings = _best_classical(spec, out, env_id) if algo == "residual_ppo" else (None, None)
+        base, settings = _best_classical(spec, out, env_id) if algo in RESIDUAL_ALGOS else (None, None)
         cfg = TrainConfig(algo=algo, env=spec.env, scenario=spec.scenario, seed=spec.seed,
                           n_timesteps=spec.n_timesteps, out=str(runs), threads=threads, name=spec.stem,
                           eval_episodes=spec.eval_episodes, test_episodes=spec.test_episodes, overrides=overrides,
@@ -159,7 +162,7 @@ def run_one(spec: RunSpec, out: str | Path, threads: int = 1) -> dict[str, Any]:
 
 def _best_classical(spec: RunSpec, out: str | Path, env_id: str) -> tuple[str, dict[str, Any]]:
     """The best classical baseline of the run's cell (highest validation score) and its settings: the
-    base of residual PPO, which then starts from the strongest model-based controller of the cell.
+    base of a residual agent, which then starts from the strongest model-based controller of the cell.
     Read from the cell's finished classical runs when they are all there, else tuned here (on
     validation episodes, as they would be)."""
     cell = [RunSpec(a, spec.env, spec.scenario, test_episodes=spec.test_episodes, eval_episodes=spec.eval_episodes)
@@ -412,7 +415,7 @@ def report(out: str | Path, reps: int = 2000, log: Callable[[str], None] = print
                                                                 lower_is_better=False, reps=reps)
                 row.update({"poi": poi.point, "poi_low": poi.low, "poi_high": poi.high})
                 target = float(classical[best_name]["validation_score"])  # type: ignore[index]
-                reached = [_parity(r, target, algo == "residual_ppo") for r in rs]
+                reached = [_parity(r, target, algo in RESIDUAL_ALGOS) for r in rs]
                 hit = [p for p in reached if p[0] is not None]
                 row["parity_runs"] = f"{len(hit)}/{len(rs)}"
                 # The median over the runs, counting a run that never got there as slower than any
@@ -556,6 +559,7 @@ _STYLE: dict[str, dict[str, Any]] = {
     "observer": {"color": "tab:brown", "ls": ":"}, "adaptive": {"color": "tab:gray", "ls": "-."},
     "oracle": {"color": "gold", "ls": "-"},
     "ppo": {"color": "tab:blue"}, "ppo_history": {"color": "tab:orange"}, "residual_ppo": {"color": "tab:green"},
+    "sac": {"color": "tab:red"}, "residual_sac": {"color": "tab:olive"},
 }
 
 

@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["ZOO_DIR", "AgentPolicy", "UntrustedFileWarning", "list_zoo", "load_agent", "sidecar_of"]
+__all__ = ["ZOO_DIR", "AgentPolicy", "UntrustedFileWarning", "algorithm_class", "list_zoo", "load_agent",
+           "sidecar_of"]
 
 #: The agents shipped with the package.
 ZOO_DIR = Path(__file__).resolve().parent.parent / "agents_zoo"
@@ -26,6 +27,32 @@ ZOO_DIR = Path(__file__).resolve().parent.parent / "agents_zoo"
 
 class UntrustedFileWarning(UserWarning):
     """Loading a model file from outside the package (SB3 zips contain pickles)."""
+
+
+def algorithm_class(algo: str) -> Any:
+    """The model class of a training algorithm: stable-baselines3's PPO (``ppo``, ``residual_ppo``),
+    sb3-contrib's RecurrentPPO (``recurrent_ppo``) or SBX's SAC (``sac``, ``residual_sac``: the JAX
+    implementation of SAC by the stable-baselines3 team, several times faster than stable-baselines3's
+    on these small networks, see the training docs)."""
+    if algo in ("ppo", "residual_ppo"):
+        from stable_baselines3 import PPO
+
+        return PPO
+    if algo == "recurrent_ppo":
+        from sb3_contrib import RecurrentPPO
+
+        return RecurrentPPO
+    if algo in ("sac", "residual_sac"):
+        import os
+
+        # One XLA thread, as one torch thread: never oversubscribe the cores (set before jax loads).
+        os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
+        try:
+            from sbx import SAC
+        except ImportError:
+            raise ImportError(f'{algo} needs SBX (JAX): pip install "vnhc-gym[rl]"') from None
+        return SAC
+    raise ValueError(f"algo must be one of ppo, residual_ppo, recurrent_ppo, sac, residual_sac, got {algo!r}")
 
 
 def list_zoo() -> list[str]:
@@ -153,11 +180,7 @@ def load_agent(path_or_name: str | Path, env: Any = None) -> AgentPolicy:
         warnings.warn(f"loading {p}: SB3 model files contain pickles; load only files you trust",
                       UntrustedFileWarning, stacklevel=2)
     meta = sidecar_of(p)
-    if meta.get("algo") == "recurrent_ppo":
-        from sb3_contrib import RecurrentPPO as Algo  # type: ignore[assignment]
-    else:
-        from stable_baselines3 import PPO as Algo  # type: ignore[assignment]
-    model = Algo.load(p, device="cpu")
+    model = algorithm_class(str(meta.get("algo", "ppo"))).load(p, device="cpu")
     agent = AgentPolicy(model, meta)
     if agent.residual is not None:
         if env is None:

@@ -61,7 +61,8 @@ ALLOWED_NN: frozenset[str] = frozenset({
 #: Hyperparameter file (``agents/hyperparams/<name>.yml``) -> RL Zoo's ``--algo``.  Residual PPO is
 #: PPO with the ``vnhc_gym.wrappers.ResidualAction`` env wrapper (RL Zoo's ``--algo`` only takes its
 #: own algorithm names); RecurrentPPO (sb3-contrib) is ``ppo_lstm`` in RL Zoo.
-RL_ZOO_ALGO: dict[str, str] = {"ppo": "ppo", "residual_ppo": "ppo", "recurrent_ppo": "ppo_lstm"}
+RL_ZOO_ALGO: dict[str, str] = {"ppo": "ppo", "residual_ppo": "ppo", "recurrent_ppo": "ppo_lstm", "sac": "sac",
+                               "residual_sac": "sac"}
 
 #: Keys RL Zoo takes itself (environment, wrappers, normalisation, budget); every other key of a
 #: section is a keyword argument of the algorithm's constructor (``policy`` included).

@@ -41,13 +41,13 @@ import vnhc_gym
 from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate
 from vnhc_gym.tasks import env_id as task_env_id
 from vnhc_gym.tasks import task_of_env_id
-from vnhc_gym.training.agents import AgentPolicy
+from vnhc_gym.training.agents import AgentPolicy, algorithm_class
 from vnhc_gym.training.hyperparams import load_hyperparams, make_schedule
 
 __all__ = ["ALGOS", "TrainConfig", "code_fingerprint", "resolve_env_id", "train"]
 
 #: Algorithms of ``vnhc-gym train``, each with its RL Zoo file ``agents/hyperparams/<algo>.yml``.
-ALGOS = ("ppo", "residual_ppo", "recurrent_ppo")
+ALGOS = ("ppo", "residual_ppo", "recurrent_ppo", "sac", "residual_sac")
 SIDECAR_FORMAT = "vnhc_gym-agent/2"
 
 
@@ -152,6 +152,32 @@ def _make_env(env_id: str, cfg: TrainConfig, n_envs: int, residual: dict[str, An
     return out
 
 
+def _start_at_base(model: Any, log_std: float | None) -> None:
+    """Make the untrained residual agent exactly its base: the policy's mean action starts at zero
+    (its last layer zeroed).  A SAC actor's log-std head, which depends on the observation, starts
+    at the constant ``log_std`` (its weights zeroed) when the file gives ``log_std_init``: a small
+    initial exploration noise around the base."""
+    import torch
+
+    if hasattr(model.policy, "action_net"):  # stable-baselines3's PPO and RecurrentPPO (torch)
+        with torch.no_grad():
+            head: Any = model.policy.action_net
+            head.weight.zero_()
+            head.bias.zero_()
+        return
+    import jax.numpy as jnp  # SBX's SAC: a flax actor whose last two dense layers are the mean and log-std
+
+    state = model.policy.actor_state
+    layers = dict(state.params["params"])
+    dense = sorted((k for k in layers if k.startswith("Dense_")), key=lambda k: int(k.split("_")[1]))
+    mean, spread = dense[-2], dense[-1]
+    layers[mean] = {k: jnp.zeros_like(v) for k, v in layers[mean].items()}
+    if log_std is not None:
+        layers[spread] = {"kernel": jnp.zeros_like(layers[spread]["kernel"]),
+                          "bias": jnp.full_like(layers[spread]["bias"], float(log_std))}
+    model.policy.actor_state = state.replace(params={**state.params, "params": layers})
+
+
 def _bound(agent: AgentPolicy, env_id: str, scenario: str) -> AgentPolicy:
     """``agent`` with a residual agent's base built for the scenario's environment."""
     if agent.residual is None:
@@ -207,18 +233,11 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
 
         venv = VecFrameStack(venv, frame_stack)
     if cfg.algo == "recurrent_ppo":
-        from sb3_contrib import RecurrentPPO as Algo  # type: ignore[assignment]
-
         policy = "MlpLstmPolicy" if policy == "MlpPolicy" else policy
-    else:
-        from stable_baselines3 import PPO as Algo  # type: ignore[assignment]
+    Algo = algorithm_class(cfg.algo)
     model = Algo(policy, venv, seed=cfg.seed, device="cpu", verbose=0, **hp)
     if residual is not None:
-        # The untrained residual agent is exactly the base law: its mean action starts at zero.
-        with torch.no_grad():
-            head: Any = model.policy.action_net
-            head.weight.zero_()
-            head.bias.zero_()
+        _start_at_base(model, (hp.get("policy_kwargs") or {}).get("log_std_init"))
     meta: dict[str, Any] = {
         "format": SIDECAR_FORMAT, "name": stem, "algo": cfg.algo, "env_id": env_id, "scenario": cfg.scenario,
         "seed": cfg.seed, "n_envs": n_envs, "n_timesteps": n_timesteps, "config": asdict(cfg),

@@ -1,0 +1,82 @@
+"""SAC's training throughput on this machine: stable-baselines3's SAC (PyTorch) against SBX's (JAX),
+with the settings of ``agents/hyperparams/sac.yml`` (32 environments, 8 gradient steps every 32
+transitions, batch 256, 64x64 networks), one thread each.  Writes results/bench_offpolicy.md and .json.
+
+    python experiments/bench_offpolicy.py            # about 2 minutes
+    python experiments/bench_offpolicy.py --quick    # a smoke run
+
+This is the measurement behind ``vnhc-gym train``'s choice of SBX for SAC: a SAC run's time is
+almost all gradient steps, and SBX compiles the whole update with JAX.  Each implementation runs
+in its own process (JAX and PyTorch each with one thread).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+_ONE = r"""
+import json, sys, time
+lib, task, steps = sys.argv[1], sys.argv[2], int(sys.argv[3])
+import vnhc_gym
+from vnhc_gym.tasks import env_id
+from vnhc_gym.training.hyperparams import load_hyperparams
+if lib == "stable-baselines3":
+    import torch
+    torch.set_num_threads(1)
+    from stable_baselines3 import SAC
+else:
+    from vnhc_gym.training.agents import algorithm_class  # sets one XLA thread before jax loads
+    SAC = algorithm_class("sac")
+hp = load_hyperparams("sac", env_id(task))
+n_envs = hp.pop("n_envs")
+for key in ("n_timesteps", "policy"):
+    hp.pop(key)
+hp["learning_starts"] = 1000
+venv = vnhc_gym.make_sb3_vec_env(env_id(task), n_envs=n_envs, seed=0)
+model = SAC("MlpPolicy", venv, seed=0, verbose=0, device="cpu", **hp)
+model.learn(hp["learning_starts"] + 20 * n_envs)  # warm-up: compilation, allocations
+t0 = time.perf_counter()
+model.learn(steps, reset_num_timesteps=False)
+wall = time.perf_counter() - t0
+grads = steps // n_envs * hp["gradient_steps"]
+print(json.dumps({"implementation": lib, "task": task, "env_steps": steps, "wall": wall,
+                  "env_steps_per_s": steps / wall, "gradient_steps_per_s": grads / wall}))
+"""
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer steps (CI)")
+    ap.add_argument("--out", default="results/bench_offpolicy")
+    args = ap.parse_args()
+    rows = []
+    env = {**os.environ, "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"}
+    for lib, steps in (("stable-baselines3", 4096 if args.quick else 32_768),
+                       ("SBX", 8192 if args.quick else 131_072)):
+        proc = subprocess.run([sys.executable, "-c", _ONE, lib, "usv", str(steps)], capture_output=True, text=True,
+                              env=env, check=False)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{lib} failed:\n{proc.stderr[-3000:]}")
+        rows.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+        r = rows[-1]
+        print(f"{lib:18s} {r['env_steps_per_s']:8.0f} env-steps/s  {r['gradient_steps_per_s']:6.0f} gradient steps/s",
+              flush=True)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "bench_offpolicy.json").write_text(json.dumps(rows, indent=1))
+    base = rows[0]["env_steps_per_s"]
+    lines = ["| SAC implementation | env-steps/s | gradient steps/s | x stable-baselines3 | 1 M env steps |",
+             "|---|---:|---:|---:|---:|"]
+    lines += [f"| {r['implementation']} | {r['env_steps_per_s']:.0f} | {r['gradient_steps_per_s']:.0f} | "
+              f"{r['env_steps_per_s'] / base:.1f} | {1e6 / r['env_steps_per_s'] / 60:.0f} min |" for r in rows]
+    (out / "bench_offpolicy.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
