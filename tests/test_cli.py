@@ -35,7 +35,7 @@ def test_top_level_help_lists_every_subcommand(capsys: pytest.CaptureFixture[str
         main(["--help"])
     assert exc.value.code == 0
     out = capsys.readouterr().out
-    assert set(SUBCOMMANDS) == {"benchmark", "train", "sweep", "reproduce"}
+    assert set(SUBCOMMANDS) == {"benchmark", "train", "tune", "sweep", "reproduce"}
     assert all(name in out for name in SUBCOMMANDS)
 
 

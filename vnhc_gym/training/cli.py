@@ -53,9 +53,11 @@ def run(args: argparse.Namespace) -> int:
     cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in names and k != "overrides"},
                       overrides=_overrides(args.params))
     meta = train(cfg, log=print)
-    test = meta["test"]["summary"]
-    print(json.dumps({"model": f"{cfg.out}/{meta['name']}.zip", "steps": meta["n_timesteps"],
-                      "steps_per_second": round(meta["steps_per_second"]),
-                      "test_score": test["score"], "test_success": test["success"],
-                      "test_mean_abs_phi_sf_iqm": test["mean_abs_phi_sf"]}, indent=1))
+    summary = {"model": f"{cfg.out}/{meta['name']}.zip", "steps": meta["n_timesteps"],
+               "steps_per_second": round(meta["steps_per_second"])}
+    if meta["test"] is not None:  # --test-episodes 0 skips the test
+        test = meta["test"]["summary"]
+        summary.update({"test_score": test["score"], "test_success": test["success"],
+                        "test_mean_abs_phi_sf_iqm": test["mean_abs_phi_sf"]})
+    print(json.dumps(summary, indent=1))
     return 0

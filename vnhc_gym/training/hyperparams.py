@@ -44,6 +44,7 @@ __all__ = [
     "RL_ZOO_KEYS",
     "SCHEDULE_KEYS",
     "available_algos",
+    "dump_hyperparams",
     "env_ids",
     "hyperparams_dir",
     "hyperparams_path",
@@ -255,6 +256,39 @@ def _read(path: str | os.PathLike[str]) -> dict[str, Any]:
 def env_ids(algo: str, path: str | os.PathLike[str] | None = None) -> list[str]:
     """The env ids (top-level keys, RL Zoo's ``default`` / ``atari`` included) of a file."""
     return list(_read(hyperparams_path(algo) if path is None else path))
+
+
+# --------------------------------------------------------------------------- writing
+def _source(value: Any) -> str:
+    """A value as RL Zoo's Python-expression strings write it (``nn.Tanh`` for a torch class)."""
+    if isinstance(value, type):
+        return f"nn.{value.__name__}"
+    if isinstance(value, dict):
+        return "dict(" + ", ".join(f"{k}={_source(v)}" for k, v in value.items()) + ")"
+    if isinstance(value, list):
+        return "[" + ", ".join(_source(v) for v in value) + "]"
+    if isinstance(value, tuple):
+        return "(" + ", ".join(_source(v) for v in value) + ("," if len(value) == 1 else "") + ")"
+    return repr(value)
+
+
+def dump_hyperparams(hp: dict[str, Any]) -> dict[str, Any]:
+    """The inverse of `load_hyperparams` for one section: data back to RL Zoo's file form (the
+    ``dict(...)`` strings, ``normalize``'s string, ``env_wrapper``'s ``{path: kwargs}`` items), so
+    that ``load_hyperparams`` of the written section gives ``hp`` again and RL Zoo reads it."""
+    out: dict[str, Any] = {}
+    for key, value in hp.items():
+        if key in _DICT_STRING_KEYS and isinstance(value, dict):
+            out[key] = _source(value)
+        elif key == "normalize" and isinstance(value, dict):
+            out[key] = _source(value)
+        elif key in _WRAPPER_KEYS and isinstance(value, list):
+            out[key] = [{path: dict(kwargs)} if kwargs else path for path, kwargs in value]
+        elif isinstance(value, tuple):
+            out[key] = list(value)
+        else:
+            out[key] = value
+    return out
 
 
 # --------------------------------------------------------------------------- loading

@@ -187,17 +187,24 @@ def _bound(agent: AgentPolicy, env_id: str, scenario: str) -> AgentPolicy:
     return agent.bind(gym.make(env_id, scenario=scenario))
 
 
-def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = None, **kwargs: Any) -> dict[str, Any]:
+def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = None,
+          on_validation: Callable[[dict[str, float]], None] | None = None, **kwargs: Any) -> dict[str, Any]:
     """Train one agent (see the module docstring) and return its sidecar.
 
     ``train(algo="ppo", env="usv", n_timesteps=200_000)`` works too (keyword arguments are
-    [`TrainConfig`][vnhc_gym.training.TrainConfig] fields).  ``log`` gets one line per validation.
+    [`TrainConfig`][vnhc_gym.training.TrainConfig] fields).  ``log`` gets one line per validation;
+    ``on_validation`` gets each validation's point of the learning curve (``steps``, ``score``, ...)
+    and may raise to stop the run (a hyperparameter search prunes a trial this way).  With
+    ``test_episodes=0`` nothing is tested (the sidecar's ``test`` is ``None``): how a search that
+    must never see the test episodes trains.
     """
     import torch
 
     cfg = cfg or TrainConfig(**kwargs)
     if cfg.algo not in ALGOS:
         raise ValueError(f"algo must be one of {list(ALGOS)}, got {cfg.algo!r}")
+    if isinstance(cfg.test_episodes, bool) or not isinstance(cfg.test_episodes, int) or cfg.test_episodes < 0:
+        raise ValueError(f"test_episodes must be a non-negative integer, got {cfg.test_episodes!r}")
     if isinstance(cfg.threads, bool) or not isinstance(cfg.threads, int) or cfg.threads < 1:
         raise ValueError(f"threads must be a positive integer, got {cfg.threads!r}")
     torch.set_num_threads(cfg.threads)
@@ -273,6 +280,8 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
             meta["obs_rms"] = _rms_json(venv)
             meta["best_steps"] = point["steps"]
         t_eval += time.perf_counter() - t0
+        if on_validation is not None:
+            on_validation(point)
 
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -293,21 +302,24 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
                     self.next += every
                 validate()
 
-    validate()
-    model.learn(total_timesteps=n_timesteps, callback=_Validate(), progress_bar=cfg.progress_bar)
-    if not curve or curve[-1]["steps"] != model.num_timesteps:
+    try:
         validate()
-    model.save(out_dir / f"{stem}-final.zip")
-    meta["final_obs_rms"] = _rms_json(venv)
-    train_wall = time.perf_counter() - t_start - t_eval
-    # The test: the best validated model, on held-out seeds.
-    agent = _bound(AgentPolicy(Algo.load(out_dir / f"{stem}.zip", device="cpu"), meta), env_id, cfg.scenario)
-    test = evaluate(agent, env_id, cfg.scenario, n_episodes=cfg.test_episodes, seed=TEST_SEED)
+        model.learn(total_timesteps=n_timesteps, callback=_Validate(), progress_bar=cfg.progress_bar)
+        if not curve or curve[-1]["steps"] != model.num_timesteps:
+            validate()
+        model.save(out_dir / f"{stem}-final.zip")
+        meta["final_obs_rms"] = _rms_json(venv)
+        train_wall = time.perf_counter() - t_start - t_eval
+        test = None
+        if cfg.test_episodes > 0:  # the test: the best validated model, on held-out seeds
+            agent = _bound(AgentPolicy(Algo.load(out_dir / f"{stem}.zip", device="cpu"), meta), env_id,
+                           cfg.scenario)
+            result = evaluate(agent, env_id, cfg.scenario, n_episodes=cfg.test_episodes, seed=TEST_SEED)
+            test = {k: v for k, v in result.to_dict().items() if k in ("metrics", "summary", "seed", "n_episodes")}
+    finally:
+        venv.close()
     meta.update({"curve": curve, "train_wall": train_wall, "eval_wall": t_eval,
-                 "steps_per_second": model.num_timesteps / max(train_wall, 1e-9),
-                 "test": {k: v for k, v in test.to_dict().items()
-                          if k in ("metrics", "summary", "seed", "n_episodes")}})
+                 "steps_per_second": model.num_timesteps / max(train_wall, 1e-9), "test": test})
     (out_dir / f"{stem}.json").write_text(json.dumps(_jsonable(meta), indent=1))
-    venv.close()
     return meta
 
