@@ -3,9 +3,10 @@ the oracle and the learned agents, scored on held-out episodes.
 
 The grid (``GRID``): every registered task x 6 scenarios x {the oracle (the headroom reference), the
 k = 5 law, the tuned law, the observer law, the adaptive law, PPO, residual PPO on the cell's best
-classical baseline, PPO with a history of 4 observations}; 5 training seeds on nominal and on the
-three scenarios where the law is weakest (noisy, mismatch, disturbance), 3 on the others; 2 M env
-steps per learned run.  ``--large`` is the bigger grid (10 seeds everywhere, 5 M steps).  It runs
+classical baseline, PPO with a history of 4 observations}, and the planning baseline (MPC within
+the force bound) on nominal and saturated; 5 training seeds on nominal and on the three scenarios
+where the law is weakest (noisy, mismatch, disturbance), 3 on the others; 2 M env steps per
+learned run.  ``--large`` is the bigger grid (10 seeds everywhere, 5 M steps).  It runs
 through ``vnhc-gym sweep``'s code path: resumable (each finished run is saved at once and skipped on
 a rerun, so the grid can run over several sittings), on a process pool or a Ray cluster; then it
 writes the report (the score's intervals, the verdict per cell, steps and seconds to parity,
@@ -31,6 +32,7 @@ from pathlib import Path
 
 from vnhc_gym.sweep import (
     CLASSICAL_ALGOS,
+    PLANNING_ALGOS,
     REFERENCE_ALGOS,
     grid,
     report,
@@ -46,7 +48,9 @@ SEEDS = {"nominal": range(5), "noisy": range(5), "mismatch": range(5), "disturba
          "saturated": range(3), "coarse": range(3)}
 #: The learned agents of the grid (``vnhc_gym.sweep.LEARNED_ALGOS`` has more: any can be added here).
 LEARNERS = ["ppo", "residual_ppo", "ppo_history"]
-ALGOS = [*REFERENCE_ALGOS, *CLASSICAL_ALGOS, *LEARNERS]
+#: The planning baseline (a solve every control step) where the force bound decides: nominal and saturated.
+PLANNING = {"algos": list(PLANNING_ALGOS), "scenarios": ["nominal", "saturated"]}
+ALGOS = [*REFERENCE_ALGOS, *(a for a in CLASSICAL_ALGOS if a not in PLANNING_ALGOS), *LEARNERS]
 GRID = {"scenarios": SCENARIOS, "algos": ALGOS, "n_timesteps": 2_000_000}
 LARGE = {"seeds": range(10), "n_timesteps": 5_000_000}
 
@@ -55,8 +59,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tiny budgets, one scenario, one seed, every task (CI)")
     ap.add_argument("--large", action="store_true", help="10 seeds in every cell and 5 M steps per learned run")
-    ap.add_argument("--algos", nargs="+", choices=ALGOS, help="run only these algorithms of the grid (the same runs, "
-                    "so a later full run skips them); the report covers every finished run")
+    ap.add_argument("--algos", nargs="+", choices=[*ALGOS, *PLANNING_ALGOS],
+                    help="run only these algorithms of the grid (the same runs, so a later full run skips them); "
+                         "the report covers every finished run")
     ap.add_argument("--out", default="results/train_compare")
     ap.add_argument("--executor", choices=["local", "ray"], default="local")
     ap.add_argument("--address", default=None)
@@ -76,10 +81,12 @@ def main() -> None:
         jobs = 1
     elif args.large:
         specs = grid(tasks, GRID["scenarios"], GRID["algos"], list(LARGE["seeds"]), LARGE["n_timesteps"])
+        specs += grid(tasks, PLANNING["scenarios"], PLANNING["algos"], [0], LARGE["n_timesteps"])
         jobs = args.jobs
     else:
         specs = grid(tasks, GRID["scenarios"], GRID["algos"], [0], GRID["n_timesteps"],
                      seeds_by_scenario={k: list(v) for k, v in SEEDS.items()})
+        specs += grid(tasks, PLANNING["scenarios"], PLANNING["algos"], [0], GRID["n_timesteps"])
         jobs = args.jobs
     if args.algos:
         specs = [s for s in specs if s.algo in args.algos]

@@ -326,3 +326,25 @@ def test_published_records_restore_the_report(tmp_path: Path) -> None:
     mine.write_text(json.dumps({**sides[1], "code": "mine"}))
     assert restore_records(tmp_path / "runs.jsonl.gz", tmp_path / "b") == 0
     assert json.loads(mine.read_text())["code"] == "mine"
+
+
+def test_the_planning_baseline_reports_its_solve_time_and_is_never_a_residual_base(tmp_path: Path) -> None:
+    """MPC can be a cell's best classical baseline (it is fielded as it is), its solve time sits beside
+    its score, and a residual agent's base is the best of the others (MPC would plan at every step of
+    every training environment)."""
+    from vnhc_gym import sweep
+    from vnhc_gym.sweep import RunSpec, report
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    scores = {"law": 0.80, "tuned_law": 0.85, "observer": 0.83, "adaptive": 0.84, "mpc": 0.90}
+    for algo, v in scores.items():
+        side = {**_side(algo, 0, [v] * 10, validation=v), "name": RunSpec(algo, "usv", "nominal").stem}
+        if algo == "mpc":
+            side["solve_seconds_per_step"] = 0.025
+        (runs / f"{side['name']}.json").write_text(json.dumps(side))
+    rows = {r["algo"]: r for r in report(tmp_path, reps=100, log=lambda s: None)["rows"]}
+    assert rows["law"]["best_classical"] == "mpc" and rows["mpc"]["solve_ms_per_step"] == pytest.approx(25.0)
+    assert "mpc (best) (25 ms/step)" in (tmp_path / "report" / "comparison.md").read_text()
+    base, settings = sweep._best_classical(RunSpec("residual_ppo", "usv", "nominal"), tmp_path, "vnhc_gym/USVStream-v1")
+    assert base == "tuned_law" and settings == {"gain": 5.0}

@@ -2,7 +2,7 @@
 
 A run is one `RunSpec`: a learned agent (``ppo``, ``residual_ppo``, ``ppo_history``, ``sac``,
 ``residual_sac``) trained and tested, a classical baseline (``law``, ``tuned_law``, ``observer``,
-``adaptive``) tuned on validation episodes and tested, or the headroom reference ``oracle`` (the
+``adaptive``, ``mpc``) tuned on validation episodes and tested, or the headroom reference ``oracle`` (the
 law in the loop on the true state and parameters), tuned and tested the same way.  Every choice
 (settings, checkpoints, the best classical baseline of a cell) and every table ranks on the
 ``score`` (the return over the fixed horizon per step, failed episodes' remaining steps counting
@@ -36,15 +36,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["CLASSICAL_ALGOS", "LEARNED_ALGOS", "REFERENCE_ALGOS", "RESIDUAL_ALGOS", "RunSpec", "grid", "load_runs",
-           "report", "restore_records", "run_one", "run_sweep", "save_records", "status"]
+__all__ = ["CLASSICAL_ALGOS", "LEARNED_ALGOS", "PLANNING_ALGOS", "REFERENCE_ALGOS", "RESIDUAL_ALGOS", "RunSpec",
+           "grid", "load_runs", "report", "restore_records", "run_one", "run_sweep", "save_records", "status"]
 
 #: Learned agents (trained with vnhc_gym.training), classical baselines (vnhc_gym.baselines.tuning)
 #: and the headroom reference (not a controller one could field: never a cell's best classical).
 LEARNED_ALGOS = ("ppo", "residual_ppo", "ppo_history", "sac", "residual_sac")
 #: Learned agents that correct a classical base (the cell's best classical baseline).
 RESIDUAL_ALGOS = ("residual_ppo", "residual_sac")
-CLASSICAL_ALGOS = ("law", "tuned_law", "observer", "adaptive")
+CLASSICAL_ALGOS = ("law", "tuned_law", "observer", "adaptive", "mpc")
+#: Classical baselines that plan (model-predictive control): fielded as they are, never a residual base.
+PLANNING_ALGOS = ("mpc",)
 REFERENCE_ALGOS = ("oracle",)
 ALL_ALGOS = LEARNED_ALGOS + CLASSICAL_ALGOS + REFERENCE_ALGOS
 #: The metric of every choice and table (its mean over episodes), higher is better.
@@ -148,12 +150,16 @@ def run_one(spec: RunSpec, out: str | Path, threads: int = 1) -> dict[str, Any]:
         from vnhc_gym.evaluation import TEST_SEED
 
         best, table = tune(spec.algo, env_id, spec.scenario, n_episodes=spec.eval_episodes)
-        test = evaluate_classical(spec.algo, best, env_id, spec.scenario, spec.test_episodes, TEST_SEED)
+        built: list[Any] = []
+        test = evaluate_classical(spec.algo, best, env_id, spec.scenario, spec.test_episodes, TEST_SEED, built=built)
         meta = {"name": spec.stem, "algo": spec.algo, "sweep_algo": spec.algo, "env_id": env_id,
                 "scenario": spec.scenario, "settings": best, "tuning": table,
                 "validation_score": max(row["score"] for row in table),
                 "test": {k: v for k, v in test.to_dict().items() if k in ("metrics", "summary", "seed", "n_episodes")},
                 "version": vnhc_gym.__version__, "code": code_fingerprint()}
+        solves = sum(getattr(p, "n_solves", 0) for p in built)
+        if solves:  # a planning baseline: its solve time per control step (for a batch of test episodes)
+            meta["solve_seconds_per_step"] = sum(p.solve_seconds for p in built) / solves
     meta["spec"] = asdict(spec)
     meta["run_wall"] = time.perf_counter() - t0
     _atomic_json(runs / f"{spec.stem}.json", meta)
@@ -164,9 +170,10 @@ def _best_classical(spec: RunSpec, out: str | Path, env_id: str) -> tuple[str, d
     """The best classical baseline of the run's cell (highest validation score) and its settings: the
     base of a residual agent, which then starts from the strongest model-based controller of the cell.
     Read from the cell's finished classical runs when they are all there, else tuned here (on
-    validation episodes, as they would be)."""
+    validation episodes, as they would be).  The planning baseline is never a base: it plans at
+    every step of every training environment, which would make training hundreds of times slower."""
     cell = [RunSpec(a, spec.env, spec.scenario, test_episodes=spec.test_episodes, eval_episodes=spec.eval_episodes)
-            for a in CLASSICAL_ALGOS]
+            for a in CLASSICAL_ALGOS if a not in PLANNING_ALGOS]
     found = [Path(out) / "runs" / f"{c.stem}.json" for c in cell]
     if all(f.exists() for f in found):
         runs = [json.loads(f.read_text()) for f in found]
@@ -410,6 +417,8 @@ def report(out: str | Path, reps: int = 2000, log: Callable[[str], None] = print
                 "best_classical": best_name,
                 "settings": rs[0].get("settings"),
             }
+            if "solve_seconds_per_step" in rs[0]:  # the planning baseline's cost, beside its score
+                row["solve_ms_per_step"] = 1e3 * float(np.mean([r["solve_seconds_per_step"] for r in rs]))
             if algo in LEARNED_ALGOS and best_scores is not None:
                 poi = stats.probability_of_improvement_interval(values[:, None], best_scores[:, None],
                                                                 lower_is_better=False, reps=reps)
@@ -462,7 +471,7 @@ def _write_tables(rows: list[dict[str, Any]], dest: Path) -> None:
 
     keys = ["env", "scenario", "algo", "kind", "runs", "episodes", "score", "low", "high", "success",
             "iqm_abs_phi_sf", "horizon_abs_phi_sf", "best_classical", "poi", "poi_low", "poi_high", "parity_steps",
-            "parity_seconds", "parity_runs"]
+            "parity_seconds", "parity_runs", "solve_ms_per_step"]
     with open(dest / "comparison.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
         w.writeheader()
@@ -474,6 +483,8 @@ def _write_tables(rows: list[dict[str, Any]], dest: Path) -> None:
                   "| steps to parity | s to parity |", "|---|---|---:|---|---:|---:|---|---:|---:|"]
         for r in (r for r in rows if r["env"] == env):
             best = " (best)" if r["algo"] == r["best_classical"] else ""
+            if "solve_ms_per_step" in r:
+                best += f" ({r['solve_ms_per_step']:.0f} ms/step)"
             steps, secs = _parity_text(r)
             lines.append(f"| {r['scenario']} | {r['algo']}{best} | {r['runs']} | {_score(r)} | {r['success']:.2f} | "
                          f"{_fmt(r['iqm_abs_phi_sf'])} | {_poi(r) if 'poi' in r else ''} | {steps} | {secs} |")
@@ -557,7 +568,7 @@ def _verdict_summary(verdicts: list[dict[str, Any]]) -> list[str]:
 _STYLE: dict[str, dict[str, Any]] = {
     "law": {"color": "black", "ls": "--"}, "tuned_law": {"color": "tab:purple", "ls": "--"},
     "observer": {"color": "tab:brown", "ls": ":"}, "adaptive": {"color": "tab:gray", "ls": "-."},
-    "oracle": {"color": "gold", "ls": "-"},
+    "oracle": {"color": "gold", "ls": "-"}, "mpc": {"color": "tab:cyan", "ls": "--"},
     "ppo": {"color": "tab:blue"}, "ppo_history": {"color": "tab:orange"}, "residual_ppo": {"color": "tab:green"},
     "sac": {"color": "tab:red"}, "residual_sac": {"color": "tab:olive"},
 }

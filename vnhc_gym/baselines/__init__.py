@@ -7,6 +7,8 @@
   observer (noisy observations).
 * [`AdaptiveController`][vnhc_gym.baselines.AdaptiveController]: the law with the mismatched
   parameters estimated online.
+* [`MPCController`][vnhc_gym.baselines.MPCController]: the planning baseline, model-predictive
+  control of ``phi`` within the force bound on the nominal model.
 * [`OracleController`][vnhc_gym.baselines.OracleController]: the headroom reference, the
   sampled-data law on the environment's true state and parameters (not an observation-based
   controller).
@@ -18,10 +20,12 @@ Every policy takes a single, wrapped or vector environment and predicts for one 
 
 from vnhc_gym.baselines.adaptive import AdaptiveController
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
+from vnhc_gym.baselines.mpc import MPCController
 from vnhc_gym.baselines.observer import ObserverController
 from vnhc_gym.baselines.oracle import OracleController
 from vnhc_gym.baselines.policy import Policy, RandomPolicy, ZeroPolicy, task_of
 from vnhc_gym.baselines.tuning import CLASSICAL, REFERENCE, make_classical, tune
 
-__all__ = ["AdaptiveController", "CLASSICAL", "DEFAULT_GAIN", "GeometricController", "ObserverController",
-           "OracleController", "Policy", "REFERENCE", "RandomPolicy", "ZeroPolicy", "make_classical", "task_of", "tune"]
+__all__ = ["AdaptiveController", "CLASSICAL", "DEFAULT_GAIN", "GeometricController", "MPCController",
+           "ObserverController", "OracleController", "Policy", "REFERENCE", "RandomPolicy", "ZeroPolicy",
+           "make_classical", "task_of", "tune"]

@@ -20,6 +20,7 @@ from typing import Any
 
 from vnhc_gym.baselines.adaptive import AdaptiveController
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
+from vnhc_gym.baselines.mpc import MPCController
 from vnhc_gym.baselines.observer import ObserverController
 from vnhc_gym.baselines.oracle import OracleController
 
@@ -37,6 +38,7 @@ CLASSICAL: dict[str, tuple[type, dict[str, list[Any]]]] = {
     "tuned_law": (GeometricController, {"gain": [1.0, 2.0, 3.0, 5.0, 8.0, 12.0, 20.0]}),
     "observer": (ObserverController, {"gain": [2.0, 5.0, 10.0], "alpha": [0.3, 0.1, 0.03, 0.01, 0.003]}),
     "adaptive": (AdaptiveController, {"gain": [2.0, 5.0, 10.0]}),
+    "mpc": (MPCController, {"gain": [2.0, 5.0, 10.0, 20.0], "horizon": [8]}),
 }
 #: The headroom reference, in the same form (the gain of exp(-k dt) per control period).
 REFERENCE: dict[str, tuple[type, dict[str, list[Any]]]] = {
@@ -56,13 +58,17 @@ def make_classical(name: str, env: Any, **kwargs: Any) -> Any:
 
 
 def evaluate_classical(name: str, settings: dict[str, Any], env_id: str, scenario: str, n_episodes: int, seed: int,
-                       **env_kwargs: Any) -> Any:
+                       built: list[Any] | None = None, **env_kwargs: Any) -> Any:
     """[`evaluate`][vnhc_gym.evaluation.evaluate] of the baseline ``name`` with ``settings`` (built on the
-    evaluation's own environment)."""
+    evaluation's own environment); ``built`` collects the policies built (to read their statistics,
+    such as the planning baseline's solve time)."""
     from vnhc_gym.evaluation import evaluate
 
     def factory(env: Any) -> Any:
-        return make_classical(name, env, **settings)
+        policy = make_classical(name, env, **settings)
+        if built is not None:
+            built.append(policy)
+        return policy
 
     res = evaluate(factory, env_id, scenario, n_episodes=n_episodes, seed=seed, **env_kwargs)
     res.policy = name
