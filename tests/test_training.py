@@ -291,3 +291,61 @@ def test_shipped_agents_load_without_warning_and_reproduce_their_record(name: st
                    seed=rec["seed"])
     recorded = rec["metrics"]["mean_abs_phi"] if "metrics" in rec else rec["episodes"]
     np.testing.assert_allclose(res.metrics["mean_abs_phi"], recorded, rtol=1e-3)
+
+
+def test_value_warmup_freezes_the_actor_and_only_the_actor() -> None:
+    """During the warm-up PPO's updates change the critic and leave the actor (layers and log std)
+    exactly as initialised; after it, the actor learns."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from vnhc_gym.training.callbacks import ValueWarmup
+
+    venv = vnhc_gym.make_sb3_vec_env("vnhc_gym/USVStream-v1", n_envs=4, seed=0)
+    model = PPO("MlpPolicy", venv, n_steps=32, batch_size=64, n_epochs=2, seed=0, device="cpu")
+    policy: Any = model.policy
+
+    def snapshot() -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+        actor = [p.detach().clone() for p in (*policy.mlp_extractor.policy_net.parameters(),
+                                              *policy.action_net.parameters(), policy.log_std)]
+        critic = [p.detach().clone() for p in (*policy.mlp_extractor.value_net.parameters(),
+                                               *policy.value_net.parameters())]
+        return actor, critic
+
+    actor0, critic0 = snapshot()
+    warm = ValueWarmup(steps=4 * 32 * 3)
+    model.learn(4 * 32 * 2, callback=warm)  # two rollouts and their updates, inside the warm-up
+    actor1, critic1 = snapshot()
+    assert all(torch.equal(a, b) for a, b in zip(actor0, actor1, strict=True))
+    assert not all(torch.equal(a, b) for a, b in zip(critic0, critic1, strict=True))
+    assert all(p.requires_grad for p in policy.parameters())  # given back at the end of learn()
+    model.learn(4 * 32 * 2, callback=ValueWarmup(steps=0), reset_num_timesteps=False)
+    actor2, _ = snapshot()
+    assert not all(torch.equal(a, b) for a, b in zip(actor1, actor2, strict=True))
+    with pytest.raises(ValueError, match="steps"):
+        ValueWarmup(steps=-1)
+    venv.close()
+
+
+def test_a_file_callback_is_applied_and_only_the_packages_own(tmp_path: Path) -> None:
+    warm = [("vnhc_gym.training.callbacks.ValueWarmup", {"steps": 10**9})]
+    meta = train(TrainConfig(algo="residual_ppo", env="usv", n_timesteps=1024, out=str(tmp_path), eval_points=1,
+                             eval_episodes=2, test_episodes=0, overrides={**TINY, "callback": warm}))
+    # The whole run is warm-up: the policy never moves, so every validation is the base's.
+    assert len({p["score"] for p in meta["curve"]}) == 1 and meta["test"] is None
+    with pytest.raises(ValueError, match="not supported"):
+        train(TrainConfig(env="usv", n_timesteps=1024, out=str(tmp_path),
+                          overrides={**TINY, "callback": [("os.system", {})]}))
+
+
+@pytest.mark.slow
+def test_a_short_residual_run_on_a_stateful_base_keeps_its_final_model_near_the_base(tmp_path: Path) -> None:
+    """Residual PPO with its shipped settings on the observer law (the boat under noise): after a
+    short run (five updates) the final model's validation score is within 10 % of the base's."""
+    meta = train(TrainConfig(algo="residual_ppo", env="usv", scenario="noisy", n_timesteps=5 * 256 * 64,
+                             out=str(tmp_path), eval_points=1, eval_episodes=5, test_episodes=0,
+                             residual_base="observer", residual_base_settings={"gain": 10.0, "alpha": 0.03}))
+    base, final = meta["curve"][0], meta["curve"][-1]
+    assert base["steps"] == 0 and final["steps"] == 5 * 256 * 64
+    assert abs(final["score"] - base["score"]) <= 0.1 * base["score"]
+    assert (tmp_path / f"{meta['name']}-final.zip").is_file()

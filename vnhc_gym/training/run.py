@@ -152,6 +152,20 @@ def _make_env(env_id: str, cfg: TrainConfig, n_envs: int, residual: dict[str, An
     return out
 
 
+def _callbacks(items: list[tuple[str, dict[str, Any]]]) -> list[Any]:
+    """The file's ``callback`` entries (RL Zoo's key: import paths with keyword arguments), built.
+    Only the package's own callbacks are imported: a hyperparameter file names code to run."""
+    import importlib
+
+    out = []
+    for path, kwargs in items:
+        module, _, name = path.rpartition(".")
+        if module != "vnhc_gym.training.callbacks":
+            raise ValueError(f"callback {path!r} is not supported by vnhc-gym train (only vnhc_gym.training.callbacks)")
+        out.append(getattr(importlib.import_module(module), name)(**kwargs))
+    return out
+
+
 def _start_at_base(model: Any, log_std: float | None) -> None:
     """Make the untrained residual agent exactly its base: the policy's mean action starts at zero
     (its last layer zeroed).  A SAC actor's log-std head, which depends on the observation, starts
@@ -218,6 +232,7 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
     normalize = hp.pop("normalize", False)
     frame_stack = int(hp.pop("frame_stack", 1))
     wrappers = hp.pop("env_wrapper", [])
+    callbacks = _callbacks(hp.pop("callback", []))
     residual = None
     for path, wkw in wrappers:
         if path.split(".")[-1] != "ResidualAction":
@@ -304,7 +319,7 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
 
     try:
         validate()
-        model.learn(total_timesteps=n_timesteps, callback=_Validate(), progress_bar=cfg.progress_bar)
+        model.learn(total_timesteps=n_timesteps, callback=[_Validate(), *callbacks], progress_bar=cfg.progress_bar)
         if not curve or curve[-1]["steps"] != model.num_timesteps:
             validate()
         model.save(out_dir / f"{stem}-final.zip")
