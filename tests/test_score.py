@@ -253,12 +253,19 @@ def _point(steps: int, score: float, low: float, wall: float) -> dict[str, float
     return {"steps": steps, "wall": wall, "score": score, "score_low": low, "score_high": score + 0.01}
 
 
-def test_parity_is_counted_from_the_agents_own_start(tmp_path: Path) -> None:
+def _report(tmp_path: Path, sides: list[dict[str, Any]]) -> dict[str, Any]:
+    """The report of a run folder holding these sidecars."""
     from vnhc_gym.sweep import report
 
     runs = tmp_path / "runs"
-    runs.mkdir()
-    sides = [
+    runs.mkdir(parents=True, exist_ok=True)
+    for s in sides:
+        (runs / f"{s['name']}.json").write_text(json.dumps(s))
+    return report(tmp_path, reps=200, log=lambda s: None)
+
+
+def test_parity_is_counted_from_the_agents_own_start(tmp_path: Path) -> None:
+    rep = _report(tmp_path, [
         _side("law", 0, [0.80] * 10, validation=0.80),
         _side("tuned_law", 0, [0.90] * 10, validation=0.90),
         # Residual runs start at their base: parity is beating it with the interval, not the start.
@@ -268,10 +275,7 @@ def test_parity_is_counted_from_the_agents_own_start(tmp_path: Path) -> None:
         _side("residual_ppo", 2, [0.92] * 10, [_point(0, 0.90, 0.88, 0.0), _point(300, 0.95, 0.92, 3.0)]),
         # From scratch: reaching the best classical's validation score.
         _side("ppo", 0, [0.5] * 10, [_point(0, 0.1, 0.0, 0.0), _point(400, 0.90, 0.8, 4.0)]),
-    ]
-    for s in sides:
-        (runs / f"{s['name']}.json").write_text(json.dumps(s))
-    rep = report(tmp_path, reps=200, log=lambda s: None)
+    ])
     rows = {r["algo"]: r for r in rep["rows"]}
     assert rows["law"]["best_classical"] == "tuned_law"
     res = rows["residual_ppo"]
@@ -286,18 +290,11 @@ def test_parity_is_counted_from_the_agents_own_start(tmp_path: Path) -> None:
 def test_the_best_learned_agent_is_chosen_on_validation_episodes(tmp_path: Path) -> None:
     """The agent with the better *test* score but the worse validation score is not the cell's best
     learned agent: the test episodes never pick the rows they then judge."""
-    from vnhc_gym.sweep import report
-
-    runs = tmp_path / "runs"
-    runs.mkdir()
-    sides = [
+    rep = _report(tmp_path, [
         _side("tuned_law", 0, [0.90] * 10, validation=0.90),
         _side("ppo", 0, [0.99] * 10, [_point(0, 0.1, 0.0, 0.0), _point(100, 0.80, 0.7, 1.0)]),
         _side("residual_ppo", 0, [0.91] * 10, [_point(0, 0.90, 0.88, 0.0), _point(100, 0.95, 0.94, 1.0)]),
-    ]
-    for s in sides:
-        (runs / f"{s['name']}.json").write_text(json.dumps(s))
-    rep = report(tmp_path, reps=200, log=lambda s: None)
+    ])
     rows = {r["algo"]: r for r in rep["rows"]}
     assert rows["ppo"]["score"] > rows["residual_ppo"]["score"]
     assert rows["ppo"]["validation_score"] == 0.80 and rows["residual_ppo"]["validation_score"] == 0.95
@@ -333,17 +330,13 @@ def test_the_planning_baseline_reports_its_solve_time_and_is_never_a_residual_ba
     its score, and a residual agent's base is the best of the others (MPC would plan at every step of
     every training environment)."""
     from vnhc_gym import sweep
-    from vnhc_gym.sweep import RunSpec, report
+    from vnhc_gym.sweep import RunSpec
 
-    runs = tmp_path / "runs"
-    runs.mkdir()
     scores = {"law": 0.80, "tuned_law": 0.85, "observer": 0.83, "adaptive": 0.84, "mpc": 0.90}
-    for algo, v in scores.items():
-        side = {**_side(algo, 0, [v] * 10, validation=v), "name": RunSpec(algo, "usv", "nominal").stem}
-        if algo == "mpc":
-            side["solve_seconds_per_step"] = 0.025
-        (runs / f"{side['name']}.json").write_text(json.dumps(side))
-    rows = {r["algo"]: r for r in report(tmp_path, reps=100, log=lambda s: None)["rows"]}
+    sides = [{**_side(algo, 0, [v] * 10, validation=v), "name": RunSpec(algo, "usv", "nominal").stem}
+             for algo, v in scores.items()]
+    sides[-1]["solve_seconds_per_step"] = 0.025
+    rows = {r["algo"]: r for r in _report(tmp_path, sides)["rows"]}
     assert rows["law"]["best_classical"] == "mpc" and rows["mpc"]["solve_ms_per_step"] == pytest.approx(25.0)
     assert "mpc (best) (25 ms/step)" in (tmp_path / "report" / "comparison.md").read_text()
     base, settings = sweep._best_classical(RunSpec("residual_ppo", "usv", "nominal"), tmp_path, "vnhc_gym/USVStream-v1")
