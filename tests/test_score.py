@@ -299,6 +299,22 @@ def test_the_best_learned_agent_is_chosen_on_validation_episodes(tmp_path: Path)
     assert rows["ppo"]["score"] > rows["residual_ppo"]["score"]
     assert rows["ppo"]["validation_score"] == 0.80 and rows["residual_ppo"]["validation_score"] == 0.95
     assert rep["verdicts"][0]["best_learned"] == "residual_ppo"
+    assert rep["verdicts"][0]["winner"] == "learned" and rep["verdicts"][0]["why"] == "+0.0100 in score"
+
+
+def test_a_verdict_says_why_from_the_numbers(tmp_path: Path) -> None:
+    """Where learning does not win, the reason comes from the cell's own numbers: the oracle leaves
+    nothing to win, no residual run left its base, the agents from scratch fall short."""
+    rep = _report(tmp_path, [
+        _side("oracle", 0, [0.907] * 10, validation=0.907),
+        _side("tuned_law", 0, [0.90, 0.91] * 5, validation=0.90),
+        _side("ppo", 0, [0.5] * 10, [_point(0, 0.1, 0.0, 0.0), _point(100, 0.50, 0.4, 1.0)]),
+        _side("residual_ppo", 0, [0.91, 0.90] * 5, [_point(0, 0.90, 0.88, 0.0), _point(100, 0.90, 0.88, 1.0)]),
+    ])
+    (cell,) = rep["verdicts"]
+    assert cell["winner"] == "none" and cell["best_learned"] == "residual_ppo"
+    assert cell["why"] == ("no headroom (the oracle is +0.0020 above the best classical); no residual run beat its "
+                           "base on validation; from scratch 0.4050 behind")
 
 
 def test_published_records_restore_the_report(tmp_path: Path) -> None:

@@ -529,7 +529,8 @@ def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, An
         # best test score would bias its probability of improvement upwards.
         top = max(learned, key=lambda r: r["validation_score"]) if learned else None
         winner, words = verdict(top, best)
-        verdicts.append({"env": env, "scenario": scenario, "verdict": words, "winner": winner,
+        why = _why(winner, oracle, best, top, learned)
+        verdicts.append({"env": env, "scenario": scenario, "verdict": words, "winner": winner, "why": why,
                          "best_classical": best["algo"] if best else None, "best_learned": top["algo"] if top else None,
                          "poi_low": top.get("poi_low") if top else None})
 
@@ -543,11 +544,41 @@ def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, An
             poi = f"**{_poi(top)}**" if top["poi_low"] > 0.5 else _poi(top)
         steps, secs = _parity_text(top) if top is not None else ("", "")
         lines.append(f"| {env} | {scenario} | {entry(oracle, name=False)} | {entry(best)} | {entry(top)} | {poi} | "
-                     f"{steps} / {secs} | {words} |")
+                     f"{steps} / {secs} | {words}{': ' + why if why else ''} |")
     lines += ["", *_verdict_summary(verdicts)]
     (dest / "headline.md").write_text("\n".join(lines) + "\n")
     (dest / "verdicts.json").write_text(json.dumps(verdicts, indent=1))
     return verdicts
+
+
+#: A best classical baseline this close to the oracle (in score) leaves nothing measurable to win.
+NO_HEADROOM = 0.005
+
+
+def _why(winner: str, oracle: dict[str, Any] | None, best: dict[str, Any] | None, top: dict[str, Any] | None,
+         learned: list[dict[str, Any]]) -> str:
+    """The reason behind a cell's verdict, in words, from its numbers: how much the best learned agent
+    gains or loses, how much the oracle leaves to win, and whether residual agents ever left their base."""
+    if winner == "incomplete" or best is None or top is None:
+        return ""
+    parts = []
+    gap = top["score"] - best["score"]
+    if winner == "learned":
+        parts.append(f"{gap:+.4f} in score")
+        if top["success"] > best["success"]:
+            parts.append(f"it finishes {top['success']:.0%} of the episodes, the classical {best['success']:.0%}")
+        return "; ".join(parts)
+    if oracle is not None and oracle["score"] - best["score"] <= NO_HEADROOM:
+        parts.append(f"no headroom (the oracle is {oracle['score'] - best['score']:+.4f} above the best classical)")
+    residual = [r for r in learned if r["algo"] in RESIDUAL_ALGOS]
+    if residual and all(r.get("parity_steps") is None for r in residual):
+        parts.append("no residual run beat its base on validation")
+    scratch = [r for r in learned if r["algo"] not in RESIDUAL_ALGOS]
+    if scratch:
+        behind = best["score"] - max(r["score"] for r in scratch)
+        if behind > 0:
+            parts.append(f"from scratch {behind:.4f} behind")
+    return "; ".join(parts)
 
 
 def _verdict_summary(verdicts: list[dict[str, Any]]) -> list[str]:
