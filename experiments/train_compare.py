@@ -12,7 +12,7 @@ a rerun, so the grid can run over several sittings), on a process pool or a Ray 
 writes the report (the score's intervals, the verdict per cell, steps and seconds to parity,
 learning curves, the verdict figure, a performance profile) to ``<out>/report``.
 
-    python experiments/train_compare.py                       # the default grid, about 3 hours on 2 cores
+    python experiments/train_compare.py                       # the default grid, about 4 hours on 2 cores
     python experiments/train_compare.py --quick               # a few minutes: every task, the pipeline end to end
     python experiments/train_compare.py --large --out results/large   # more seeds, longer budgets
     python experiments/train_compare.py --executor ray --address <head>:6379   # on a cluster

@@ -47,6 +47,12 @@ VARIANTS = {"ppo": ("ppo", TINY), "residual_ppo": ("residual_ppo", TINY),
             "history": ("ppo", {**TINY, "frame_stack": 4}), "sac": ("sac", TINY_SAC),
             "residual_sac": ("residual_sac", TINY_SAC)}
 RESIDUAL = ("residual_ppo", "residual_sac")
+#: SAC's variants run on two tasks (the training code is the same for every task; JAX compiles each run).
+SAC_ENVS = ENVS[:2]
+
+
+def _applies(env: str, variant: str) -> bool:
+    return "sac" not in variant or env in SAC_ENVS
 
 
 def _short(e: str) -> str:
@@ -64,6 +70,8 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, str], tupl
     done = {}
     for env in ENVS:
         for variant, (algo, overrides) in VARIANTS.items():
+            if not _applies(env, variant):
+                continue
             cfg = TrainConfig(algo=algo, env=_task_name(env), n_timesteps=2000, overrides=dict(overrides),
                               out=str(out), eval_points=2, eval_episodes=3, test_episodes=3, threads=1,
                               name=f"{_task_name(env)}-{variant}")
@@ -74,7 +82,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, str], tupl
     return done
 
 
-CASES = [(e, v) for e in ENVS for v in VARIANTS]
+CASES = [(e, v) for e in ENVS for v in VARIANTS if _applies(e, v)]
 
 
 def _case_id(case: tuple[str, str]) -> str:
@@ -165,8 +173,8 @@ def test_the_history_variant_sees_four_observations(runs: dict, env: str) -> Non
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("variant", RESIDUAL)
-@pytest.mark.parametrize("env", ENVS, ids=_short)
+@pytest.mark.parametrize(("env", "variant"), [c for c in CASES if c[1] in RESIDUAL],
+                         ids=[_case_id(c) for c in CASES if c[1] in RESIDUAL])
 def test_the_untrained_residual_agent_is_the_base_law(runs: dict, env: str, variant: str) -> None:
     """The first validation (step 0, zero-initialised mean head) is exactly the law's evaluation."""
     _, meta = runs[(env, variant)]
