@@ -4,10 +4,11 @@ with and without each of them.  Writes results/residual_safeguards.md and .json.
     python experiments/residual_safeguards.py                 # 4 variants x 2 seeds x 1 M steps, about 15 minutes
     python experiments/residual_safeguards.py --quick         # a smoke run
 
-The variants (``VARIANTS``) start from the shipped residual PPO settings (residual scale 0.2,
-initial log std -2, the base action in the observation) and add a value-function warm-up (the
-policy frozen while the critic learns the base's returns, `vnhc_gym.training.callbacks.ValueWarmup`),
-a smaller residual scale and initial noise (0.1 and -3, as residual RL papers start), or both.
+Each run's learning curve is in its sidecar under ``<out>/runs``.  The variants
+(``VARIANTS``) start from the shipped residual PPO settings (residual scale 0.2, initial log std
+-2, the base action in the observation) and add a value-function warm-up (the policy frozen while
+the critic learns the base's returns, `vnhc_gym.training.callbacks.ValueWarmup`), a smaller
+residual scale and initial noise (0.1 and -3, as residual RL papers start), or both.
 The base is the cell's best classical baseline with its shipped tuned settings (by default the
 observer law on the boat's ``noisy`` scenario, a base with internal state).  Every number is a
 validation score (seeds from 5 000): the base's (the untrained agent's, step 0), the best
@@ -56,7 +57,7 @@ def one(variant: str, env: str, scenario: str, base: str, seed: int, steps: int,
     start, best = curve[0], max(curve, key=lambda p: p["score"])
     return {"variant": variant, "seed": seed, "base": start["score"], "best": best["score"],
             "best_low": best["score_low"], "best_steps": best["steps"], "final": curve[-1]["score"],
-            "beats_base": bool(best["score_low"] > start["score"]), "curve": curve}
+            "beats_base": bool(best["score_low"] > start["score"])}
 
 
 def main() -> None:

@@ -18,6 +18,7 @@ learning curves, the verdict figure, a performance profile) to ``<out>/report``.
     python experiments/train_compare.py --executor ray --address <head>:6379   # on a cluster
     python experiments/train_compare.py --publish docs/results/train_compare   # copy the report there
     python experiments/train_compare.py --records docs/results/train_compare/runs.jsonl.gz   # continue it
+    python experiments/train_compare.py --records docs/results/train_compare/runs.jsonl.gz --report-only
 
 ``--publish`` also writes every finished run's record (``runs.jsonl.gz``: the test episodes'
 metrics, learning curves and settings) beside the report, so that anyone can recompute the
@@ -70,6 +71,8 @@ def main() -> None:
                     "headline table in the README (between the results markers)")
     ap.add_argument("--records", metavar="FILE", help="start from the run records of a published report "
                     "(runs.jsonl.gz): those runs are skipped and included in the report")
+    ap.add_argument("--report-only", action="store_true",
+                    help="run nothing: make the report (and --publish, --ship) from the finished runs in --out")
     ap.add_argument("--ship", action="store_true",
                     help="copy the median-seed nominal agent of each task and algorithm into vnhc_gym/agents_zoo and "
                          "the classical settings chosen per cell into vnhc_gym/baselines/settings.json")
@@ -96,7 +99,8 @@ def main() -> None:
     specs.sort(key=lambda s: s.learned)
     if args.records:
         print(f"{restore_records(args.records, args.out)} runs restored from {args.records}")
-    run_sweep(specs, args.out, executor=args.executor, jobs=jobs, threads=1, address=args.address)
+    if not args.report_only:
+        run_sweep(specs, args.out, executor=args.executor, jobs=jobs, threads=1, address=args.address)
     report(args.out)
     if args.publish:
         dest = Path(args.publish)

@@ -92,3 +92,14 @@ def test_bench_offpolicy_quick_measures_both_sac_implementations(tmp_path: Path)
     assert [r["implementation"] for r in rows] == ["stable-baselines3", "SBX"]
     assert all(r["env_steps_per_s"] > 0 and r["gradient_steps_per_s"] > 0 for r in rows)
     assert (out / "bench_offpolicy.md").read_text() in proc.stdout
+
+
+@pytest.mark.slow
+def test_residual_safeguards_quick_runs_every_variant(tmp_path: Path) -> None:
+    pytest.importorskip("stable_baselines3")
+    out = tmp_path / "safeguards"
+    proc = _run("residual_safeguards.py", out)
+    rows = json.loads((out / "residual_safeguards.json").read_text())
+    assert [r["variant"] for r in rows] == ["shipped", "warm-up", "small", "warm-up + small"]
+    assert all(0 < r["base"] <= 1 and r["best"] >= r["base"] for r in rows)
+    assert (out / "residual_safeguards.md").read_text() in proc.stdout
