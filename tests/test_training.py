@@ -341,6 +341,7 @@ def test_a_file_callback_is_applied_and_only_the_packages_own(tmp_path: Path) ->
                              eval_episodes=2, test_episodes=0, overrides={**TINY, "callback": warm}))
     # The whole run is warm-up: the policy never moves, so every validation is the base's.
     assert len({p["score"] for p in meta["curve"]}) == 1 and meta["test"] is None
+    assert meta["callbacks"] == [["vnhc_gym.training.callbacks.ValueWarmup", {"steps": 10**9}]]  # recorded
     with pytest.raises(ValueError, match="not supported"):
         train(TrainConfig(env="usv", n_timesteps=1024, out=str(tmp_path),
                           overrides={**TINY, "callback": [("os.system", {})]}))

@@ -14,9 +14,12 @@ algorithm's RL Zoo file (``agents/hyperparams/<algo>.yml``), trains, and writes 
 
 ``--algo`` is ``ppo`` (from scratch), ``residual_ppo`` (PPO through
 [`ResidualVectorAction`][vnhc_gym.wrappers.ResidualVectorAction] on top of the geometric law; the network's last
-layer starts at zero, so the untrained agent is the law) or ``recurrent_ppo`` (sb3-contrib's
-RecurrentPPO, an LSTM policy).  Validation episodes use seeds from 5 000, test episodes from 10 000;
-training episodes use small seeds, so the three never overlap.
+layer starts at zero, so the untrained agent is the law), ``recurrent_ppo`` (sb3-contrib's
+RecurrentPPO, an LSTM policy), ``sac`` (SBX's SAC) or ``residual_sac`` (SAC through the same
+residual wrapper, its mean head zeroed and its log-std head constant at the file's
+``log_std_init``).  A file's ``callback`` entries (RL Zoo's key) may name the package's own
+callbacks (`vnhc_gym.training.callbacks`).  Validation episodes use seeds from 5 000, test episodes
+from 10 000; training episodes use small seeds, so the three never overlap.
 
 Threads: the environment kernels run on one thread (numba, no thread pool); torch gets ``threads``
 threads, 1 by default.  A second thread makes one run alone on an idle two-core machine up to about
@@ -232,7 +235,8 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
     normalize = hp.pop("normalize", False)
     frame_stack = int(hp.pop("frame_stack", 1))
     wrappers = hp.pop("env_wrapper", [])
-    callbacks = _callbacks(hp.pop("callback", []))
+    callback_items = hp.pop("callback", [])
+    callbacks = _callbacks(callback_items)
     residual = None
     for path, wkw in wrappers:
         if path.split(".")[-1] != "ResidualAction":
@@ -264,6 +268,7 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
         "format": SIDECAR_FORMAT, "name": stem, "algo": cfg.algo, "env_id": env_id, "scenario": cfg.scenario,
         "seed": cfg.seed, "n_envs": n_envs, "n_timesteps": n_timesteps, "config": asdict(cfg),
         "hyperparams": _jsonable(hp), "policy": policy, "normalize": _jsonable(normalize),
+        "callbacks": _jsonable(callback_items),
         "residual": residual if residual is None else {**residual, "gain": residual.get("gain", 5.0)},
         "version": vnhc_gym.__version__, "code": code_fingerprint(), "obs_rms": None, "frame_stack": frame_stack,
     }
