@@ -357,3 +357,19 @@ def test_the_planning_baseline_reports_its_solve_time_and_is_never_a_residual_ba
     assert "mpc (best) (25 ms/step)" in (tmp_path / "report" / "comparison.md").read_text()
     base, settings = sweep._best_classical(RunSpec("residual_ppo", "usv", "nominal"), tmp_path, "vnhc_gym/USVStream-v1")
     assert base == "tuned_law" and settings == {"gain": 5.0}
+
+
+def test_a_higher_mean_without_the_pairwise_majority_is_explained() -> None:
+    """The boat under kicks in miniature: the law finishes three episodes in four with a high score
+    and fails the fourth; an agent that finishes all of them at a lower level has the higher mean
+    but loses most pairwise comparisons, and the verdict says both."""
+    import tempfile
+
+    law = _side("tuned_law", 0, [0.97, 0.97, 0.97, 0.30] * 5, validation=0.80)
+    law["test"]["metrics"]["success"] = [1.0, 1.0, 1.0, 0.0] * 5
+    agent = _side("ppo", 0, [0.85] * 20, [_point(0, 0.1, 0.0, 0.0), _point(100, 0.85, 0.84, 1.0)])
+    with tempfile.TemporaryDirectory() as tmp:
+        (cell,) = _report(Path(tmp), [law, agent])["verdicts"]
+    assert cell["winner"] in ("classical", "none")
+    assert cell["why"].startswith("ppo has the higher mean (+0.0475) but not most pairwise comparisons; "
+                                  "ppo finishes 100% of the episodes, tuned_law 75%")

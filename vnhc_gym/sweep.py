@@ -558,18 +558,29 @@ NO_HEADROOM = 0.005
 def _why(winner: str, oracle: dict[str, Any] | None, best: dict[str, Any] | None, top: dict[str, Any] | None,
          learned: list[dict[str, Any]]) -> str:
     """The reason behind a cell's verdict, in words, from its numbers: how much the best learned agent
-    gains or loses, how much the oracle leaves to win, and whether residual agents ever left their base."""
+    gains or loses, which one finishes more episodes, how much the oracle leaves to win, and whether
+    residual agents ever left their base."""
     if winner == "incomplete" or best is None or top is None:
         return ""
     parts = []
     gap = top["score"] - best["score"]
+    finishes = (f"{top['algo']} finishes {top['success']:.0%} of the episodes, {best['algo']} {best['success']:.0%}"
+                if top["success"] != best["success"] else "")
     if winner == "learned":
-        parts.append(f"{gap:+.4f} in score")
-        if top["success"] > best["success"]:
-            parts.append(f"it finishes {top['success']:.0%} of the episodes, the classical {best['success']:.0%}")
-        return "; ".join(parts)
-    if oracle is not None and oracle["score"] - best["score"] <= NO_HEADROOM:
-        parts.append(f"no headroom (the oracle is {oracle['score'] - best['score']:+.4f} above the best classical)")
+        return "; ".join(p for p in (f"{gap:+.4f} in score", finishes) if p)
+    if gap > 0:
+        # A higher mean without the pairwise majority: the classical baseline's episodes mostly score
+        # higher, and a few of them (typically failures) pull its mean down.
+        parts.append(f"{top['algo']} has the higher mean ({gap:+.4f}) but not most pairwise comparisons")
+        if finishes:
+            parts.append(finishes)
+    if oracle is not None:
+        headroom = oracle["score"] - best["score"]
+        if headroom < 0:
+            parts.append(f"the oracle scores below the best classical ({headroom:+.4f}: it fails "
+                         f"{1 - oracle['success']:.0%} of the episodes)")
+        elif headroom <= NO_HEADROOM:
+            parts.append(f"no headroom (the oracle is {headroom:+.4f} above the best classical)")
     residual = [r for r in learned if r["algo"] in RESIDUAL_ALGOS]
     if residual and all(r.get("parity_steps") is None for r in residual):
         parts.append("no residual run beat its base on validation")
