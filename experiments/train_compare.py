@@ -15,6 +15,7 @@ learning curves, the verdict figure, a performance profile) to ``<out>/report``.
     python experiments/train_compare.py                       # the default grid, about 4 hours on 2 cores
     python experiments/train_compare.py --quick               # a few minutes: every task, the pipeline end to end
     python experiments/train_compare.py --large --out results/large   # more seeds, longer budgets
+    python experiments/train_compare.py --learners ppo residual_ppo ppo_history sac residual_sac   # SAC too
     python experiments/train_compare.py --executor ray --address <head>:6379   # on a cluster
     python experiments/train_compare.py --publish docs/results/train_compare   # copy the report there
     python experiments/train_compare.py --records docs/results/train_compare/runs.jsonl.gz   # continue it
@@ -33,6 +34,7 @@ from pathlib import Path
 
 from vnhc_gym.sweep import (
     CLASSICAL_ALGOS,
+    LEARNED_ALGOS,
     PLANNING_ALGOS,
     REFERENCE_ALGOS,
     grid,
@@ -47,12 +49,15 @@ SCENARIOS = ["nominal", "saturated", "mismatch", "noisy", "coarse", "disturbance
 #: Five seeds where the law is weakest and on nominal, three elsewhere.
 SEEDS = {"nominal": range(5), "noisy": range(5), "mismatch": range(5), "disturbance": range(5),
          "saturated": range(3), "coarse": range(3)}
-#: The learned agents of the grid (``vnhc_gym.sweep.LEARNED_ALGOS`` has more: any can be added here).
+#: The learned agents of the default grid (``--learners`` adds any of ``vnhc_gym.sweep.LEARNED_ALGOS``).
 LEARNERS = ["ppo", "residual_ppo", "ppo_history"]
+#: Budgets (env steps) of the learners that do not take the grid's: SAC's file budget of 1 M (an
+#: off-policy env step costs about 15x a PPO one here).
+BUDGETS = {"sac": 1_000_000, "residual_sac": 1_000_000}
 #: The planning baseline (a solve every control step) where the force bound decides: nominal and saturated.
 PLANNING = {"algos": list(PLANNING_ALGOS), "scenarios": ["nominal", "saturated"]}
-ALGOS = [*REFERENCE_ALGOS, *(a for a in CLASSICAL_ALGOS if a not in PLANNING_ALGOS), *LEARNERS]
-GRID = {"scenarios": SCENARIOS, "algos": ALGOS, "n_timesteps": 2_000_000}
+CLASSICAL = [*REFERENCE_ALGOS, *(a for a in CLASSICAL_ALGOS if a not in PLANNING_ALGOS)]
+GRID = {"scenarios": SCENARIOS, "algos": [*CLASSICAL, *LEARNERS], "n_timesteps": 2_000_000}
 LARGE = {"seeds": range(10), "n_timesteps": 5_000_000}
 
 
@@ -60,7 +65,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tiny budgets, one scenario, one seed, every task (CI)")
     ap.add_argument("--large", action="store_true", help="10 seeds in every cell and 5 M steps per learned run")
-    ap.add_argument("--algos", nargs="+", choices=[*ALGOS, *PLANNING_ALGOS],
+    ap.add_argument("--learners", nargs="+", default=LEARNERS, choices=list(LEARNED_ALGOS),
+                    help=f"the learned agents of the grid (default {' '.join(LEARNERS)})")
+    ap.add_argument("--algos", nargs="+", choices=[*CLASSICAL, *LEARNED_ALGOS, *PLANNING_ALGOS],
                     help="run only these algorithms of the grid (the same runs, so a later full run skips them); "
                          "the report covers every finished run")
     ap.add_argument("--out", default="results/train_compare")
@@ -82,14 +89,16 @@ def main() -> None:
         specs = grid(tasks, ["nominal"], ["oracle", "law", "tuned_law", "observer", "ppo", "residual_ppo"], [0], 2048,
                      test_episodes=4, eval_episodes=4)
         jobs = 1
-    elif args.large:
-        specs = grid(tasks, GRID["scenarios"], GRID["algos"], list(LARGE["seeds"]), LARGE["n_timesteps"])
-        specs += grid(tasks, PLANNING["scenarios"], PLANNING["algos"], [0], LARGE["n_timesteps"])
-        jobs = args.jobs
     else:
-        specs = grid(tasks, GRID["scenarios"], GRID["algos"], [0], GRID["n_timesteps"],
-                     seeds_by_scenario={k: list(v) for k, v in SEEDS.items()})
-        specs += grid(tasks, PLANNING["scenarios"], PLANNING["algos"], [0], GRID["n_timesteps"])
+        size = LARGE if args.large else GRID
+        seeds = {} if args.large else {k: list(v) for k, v in SEEDS.items()}
+        specs = grid(tasks, GRID["scenarios"], CLASSICAL, list(LARGE["seeds"]) if args.large else [0],
+                     size["n_timesteps"])
+        for learner in args.learners:
+            budget = BUDGETS.get(learner, GRID["n_timesteps"]) * size["n_timesteps"] // GRID["n_timesteps"]
+            specs += grid(tasks, GRID["scenarios"], [learner], list(LARGE["seeds"]) if args.large else [0], budget,
+                          seeds_by_scenario=seeds)
+        specs += grid(tasks, PLANNING["scenarios"], PLANNING["algos"], [0], size["n_timesteps"])
         jobs = args.jobs
     if args.algos:
         specs = [s for s in specs if s.algo in args.algos]

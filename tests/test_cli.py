@@ -70,10 +70,11 @@ def test_argument_errors_are_usage_errors(args: list[str], capsys: pytest.Captur
 @pytest.mark.parametrize("args", [
     ["train", "--env", "no_such_task", "-n", "10"],
     ["train", "-n", "10", "-params", "n_steps"],
+    ["train", "-n", "10", "--env-kwargs", "reward=reciprocal"],
     ["sweep", "--algos", "td3", "--out", "{tmp}"],
     ["benchmark", "--episodes", "0", "--no-agents", "--out", "{tmp}"],
     ["sweep", "--config", "{tmp}/bad.yml", "--out", "{tmp}"],
-], ids=["unknown-env", "bad-params", "unknown-sweep-algo", "zero-episodes", "unknown-config-key"])
+], ids=["unknown-env", "bad-params", "bad-env-kwargs", "unknown-sweep-algo", "zero-episodes", "unknown-config-key"])
 def test_bad_values_give_a_usage_error_not_a_traceback(args: list[str], tmp_path: Path,
                                                        capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "bad.yml").write_text("envs: [usv]\nepisodes: 3\n")
@@ -89,7 +90,7 @@ def test_train_default_path_in_a_subprocess(tmp_path: Path) -> None:
     pytest.importorskip("stable_baselines3")
     out = tmp_path / "runs"
     proc = _run("train", "-n", "2048", "--out", str(out), "--eval-points", "2", "--test-episodes", "3",
-                "-params", "n_envs:8", "n_steps:64", "batch_size:128")
+                "-params", "n_envs:8", "n_steps:64", "batch_size:128", "--env-kwargs", "reward:reciprocal")
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = json.loads(proc.stdout[proc.stdout.index("{"):])
     stem = "usv-nominal-ppo-s0"
@@ -98,6 +99,7 @@ def test_train_default_path_in_a_subprocess(tmp_path: Path) -> None:
     side = json.loads((out / f"{stem}.json").read_text())
     assert side["env_id"] == "vnhc_gym/USVStream-v1" and side["algo"] == "ppo" and side["scenario"] == "nominal"
     assert side["n_envs"] == 8 and side["hyperparams"]["n_steps"] == 64 and side["hyperparams"]["batch_size"] == 128
+    assert side["config"]["env_kwargs"] == {"reward": "reciprocal"}  # the training environments' only
     assert side["test"]["seed"] == TEST_SEED and side["test"]["n_episodes"] == 3
     assert summary["test_mean_abs_phi_sf_iqm"] == side["test"]["summary"]["mean_abs_phi_sf"]
     assert summary["test_score"] == side["test"]["summary"]["score"]

@@ -30,6 +30,7 @@ from vnhc_gym.envs.config import SCENARIOS
 from vnhc_gym.envs.env import ConstraintEnv
 from vnhc_gym.envs.vector import ConstraintVectorEnv
 from vnhc_gym.tasks import TASKS, env_ids, task_of_env_id
+from vnhc_gym.tasks import env_id as make_env_id
 
 pytestmark = pytest.mark.filterwarnings("ignore:.*is out of date:DeprecationWarning")
 
@@ -217,6 +218,24 @@ def test_reward_is_the_documented_function_of_phi(any_id: str, settings: dict, e
         assert r == pytest.approx(want, rel=1e-12, abs=1e-300)
         if term or trunc:
             env.reset()
+
+
+def test_reciprocal_reward_is_the_documented_long_tail(env_cache) -> None:
+    """``reward="reciprocal"``: ``clip(1 / (1 + |phi~| / sigma) - c mean(a^2), 0, 1)``, which is
+    never below the exponential's ``exp(-|phi~| / sigma)`` (``1 + x <= e^x``) and, unlike it, still
+    tells far states apart (it falls as ``sigma / |phi~|``)."""
+    for name in ("flocking", "usv", "cartpole"):
+        env = env_cache(make_env_id(name), reward="reciprocal", action_cost=0.1)
+        sigma = type(task(env)).reward_sigma
+        env.reset(seed=3)
+        for a in action_seq(env, 60, lo=-1.5, hi=1.5):
+            _, r, term, trunc, info = env.step(a)
+            c = 0.1 * np.mean(np.clip(a.astype(np.float64), -1, 1) ** 2)
+            x = info["abs_phi_sf"] / sigma
+            assert r == pytest.approx(min(max(1.0 / (1.0 + x) - c, 0.0), 1.0), rel=1e-12, abs=1e-300)
+            assert r >= min(max(math.exp(-x) - c, 0.0), 1.0)
+            if term or trunc:
+                env.reset()
 
 
 def test_rewards_stay_in_the_documented_range(any_id: str, scenario: str) -> None:

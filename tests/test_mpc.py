@@ -57,6 +57,27 @@ def test_mpc_is_a_tunable_classical_baseline_and_refuses_bad_settings() -> None:
     pol = make_classical("mpc", env, gain=10.0, horizon=4)
     assert isinstance(pol, MPCController) and pol.name == "mpc" and pol.horizon == 4
     for kwargs, match in (({"horizon": 0}, "horizon"), ({"iters": 1.5}, "iters"), ({"fd_step": 0.5}, "fd_step"),
-                          ({"gain": -1.0}, "gain")):
+                          ({"gain": -1.0}, "gain"), ({"limit_weight": -1.0}, "limit_weight"),
+                          ({"limit_margin": 0.0}, "limit_margin")):
         with pytest.raises(ValueError, match=match):
             MPCController(env, **kwargs)  # type: ignore[arg-type]
+
+
+def test_mpc_keeps_the_state_inside_a_limit_the_unpenalised_plan_leaves() -> None:
+    """The sled's turn-rate limit set to 0.8 of each start's turn rate: the plan that ignores the
+    limit (``limit_weight=0``) lets it end at least one episode; the penalised plan ends none."""
+    ends = {0.0: 0, 1e4: 0}
+    for ep in range(5):
+        probe = gym.make("vnhc_gym/SledCruise-v1")
+        _, info = probe.reset(seed=VALIDATION_SEED + ep)
+        limit = 0.8 * abs(info["state"][5])
+        for weight in ends:
+            env = gym.make("vnhc_gym/SledCruise-v1", max_episode_steps=20, max_turn_rate=limit)
+            mpc = MPCController(env, gain=5.0, limit_weight=weight)
+            obs, _ = env.reset(seed=VALIDATION_SEED + ep)
+            for _ in range(20):
+                obs, _, terminated, truncated, info = env.step(mpc.predict(obs)[0])
+                if terminated or truncated:
+                    ends[weight] += info.get("termination_reason") == "turn_rate_exceeded"
+                    break
+    assert ends[0.0] >= 1 and ends[1e4] == 0

@@ -12,7 +12,11 @@ closest to the law's own target decay,
     \\qquad x_{k+1} = F(x_k, a_k\\,u_{max}),
 
 (``s`` the task's ``phi_sf_scale``, ``F`` the environment's RK4 step map of one control period on
-the nominal parameters) and applies the first.  Where the bound does not bind, the law's sampled
+the nominal parameters) and applies the first.  A task's state limits (``Task.limits``: the
+episode ends when ``|x_i| > b_i``) enter as a penalty
+``w sum_k sum_i max(0, |x_{k,i}| / b_i - margin)^2`` on predicted states beyond ``margin`` of
+the bound: ending an episode forfeits every later step's reward, so a plan that holds ``phi`` a
+little worse but stays inside is the better one.  Where the bound does not bind, the law's sampled
 variant reaches the target exactly, so the plan is the law; where it binds, the plan trades the
 near term against the later steps and may start braking earlier than the clipped law.
 
@@ -57,6 +61,10 @@ class MPCController(GeometricController):
         Largest number of L-BFGS-B iterations per control step.
     fd_step : float, default 1e-6
         Step of the forward differences, in units of the normalised action.
+    limit_weight : float, default 1e4
+        Weight ``w`` of the state-limit penalty (0: ignore the limits).
+    limit_margin : float, default 0.9
+        Fraction of each limit beyond which the penalty starts.
 
     Attributes
     ----------
@@ -65,14 +73,24 @@ class MPCController(GeometricController):
     """
 
     def __init__(self, env: Any, gain: ArrayLike = DEFAULT_GAIN, horizon: int = 8, iters: int = 30,
-                 fd_step: float = 1e-6) -> None:
+                 fd_step: float = 1e-6, limit_weight: float = 1e4, limit_margin: float = 0.9) -> None:
         super().__init__(env, gain=gain)
         for name, value in (("horizon", horizon), ("iters", iters)):
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
         if not (np.isfinite(fd_step) and 0 < fd_step < 1e-2):
             raise ValueError(f"fd_step must be a number in (0, 0.01), got {fd_step!r}")
+        if not (np.isfinite(limit_weight) and limit_weight >= 0):
+            raise ValueError(f"limit_weight must be a finite number >= 0, got {limit_weight!r}")
+        if not (np.isfinite(limit_margin) and 0 < limit_margin <= 1):
+            raise ValueError(f"limit_margin must be a number in (0, 1], got {limit_margin!r}")
         self.horizon, self.max_iters, self.fd_step = int(horizon), int(iters), float(fd_step)
+        self.limit_weight, self.limit_margin = float(limit_weight), float(limit_margin)
+        # The limits index the environment's state; a controller model of other coordinates
+        # (the boat's, relative to the water) has none to check.
+        own = self.model is self.task.model
+        self.limit_index = np.array([i for _, i, _ in self.task.limits] if own else [], dtype=np.intp)
+        self.limit_bound = np.array([b for _, _, b in self.task.limits] if own else [], dtype=np.float64)
         self.name = "mpc"
         self.scale = np.broadcast_to(np.asarray(self.task.phi_sf_scale, dtype=np.float64), (self.model.n_gains,))
         self.bound = np.broadcast_to(np.asarray(self.force_bound, dtype=np.float64), (self.act_dim,)).copy()
@@ -90,6 +108,9 @@ class MPCController(GeometricController):
             x, _, _ = self.model.step(x, self.dt, u=plans[:, k] * self.bound, params=params, substeps=self.substeps)
             err = (self.model.phi(x, params) - ref[:, k]) / self.scale
             cost += np.sum(err * err, axis=1)
+            if self.limit_weight and self.limit_index.size:
+                over = np.maximum(np.abs(x[:, self.limit_index]) / self.limit_bound - self.limit_margin, 0.0)
+                cost += self.limit_weight * np.sum(over * over, axis=1)
         return np.where(np.isfinite(cost), cost, _DIVERGED)
 
     def plan(self, states: Array, params: Array, start: Array) -> Array:

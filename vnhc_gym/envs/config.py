@@ -33,8 +33,11 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 #: Reward shapes: ``"raw"`` is ``clip(-|phi| / phi_scale - action_cost mean(a^2), -reward_clip, 0)``;
 #: ``"bounded"`` is ``exp(-|phi~| / reward_sigma) - action_cost mean(a^2)`` in ``[0, 1]`` with the
-#: task's scale-free ``|phi~|``.
-REWARDS = ("raw", "bounded")
+#: task's scale-free ``|phi~|``; ``"reciprocal"`` is ``1 / (1 + |phi~| / reward_sigma) - action_cost
+#: mean(a^2)`` in ``[0, 1]``: the same value and slope as ``"bounded"`` at ``phi~ = 0``, but a long
+#: tail (``sigma / |phi~|`` far away, where the exponential is numerically 0), dm_control's
+#: ``tolerance(..., sigmoid="reciprocal", value_at_margin=0.5)`` with the margin ``reward_sigma``.
+REWARDS = ("raw", "bounded", "reciprocal")
 
 
 def check_optional(name: str, value: Any, **bounds: Any) -> float | None:
@@ -89,12 +92,13 @@ class EnvConfig:
         Largest absolute force of each control (``None``: the task's default).
     force_bound_scale : float
         Multiplies ``force_bound`` (the ``saturated`` scenario uses 0.05).
-    reward : {"raw", "bounded"}
+    reward : {"raw", "bounded", "reciprocal"}
         The reward's shape (see ``REWARDS``).
     phi_scale : float
         ``|phi|`` is divided by this in the raw reward.
     reward_sigma : float or None
-        Width of the bounded reward ``exp(-|phi~| / reward_sigma)`` (``None``: the task's default).
+        Width of the bounded reward ``exp(-|phi~| / reward_sigma)`` (or of the reciprocal one;
+        ``None``: the task's default).
     action_cost : float
         Weight ``c_u`` of ``mean(a^2)`` in the reward.
     reward_clip : float

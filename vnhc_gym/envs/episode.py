@@ -29,6 +29,10 @@ STATUS_OK = 0
 STATUS_NONFINITE = 1  #: the state (or phi) was not finite: the row kept its last finite state
 # A task's termination code c >= 1 (what its ``observe`` returns) is stored as status 1 + c.
 
+#: The reward shapes of ``EnvConfig.reward`` (`vnhc_gym.envs.config.REWARDS`) as the kernels read them.
+RAW, BOUNDED, RECIPROCAL = 0, 1, 2
+REWARD_SHAPES = {"raw": RAW, "bounded": BOUNDED, "reciprocal": RECIPROCAL}
+
 
 class Buffers(NamedTuple):
     """The arrays of ``B`` episodes (row ``r`` is one episode); kernels write them in place.
@@ -85,7 +89,7 @@ class StepConfig(NamedTuple):
     mode: int  #: feedback mode of RK4: OPEN (the action only), CONTINUOUS or SAMPLED (in-loop law)
     gains: np.ndarray  #: (n_gains,) the in-loop law's gains
     singular_tol: float  #: singular test of the in-loop law
-    bounded: bool  #: reward shape: exp(-|phi~| / sigma) (True) or the raw clip(-|phi| / phi_scale)
+    reward_shape: int  #: RAW clip(-|phi| / phi_scale), BOUNDED exp(-|phi~| / sigma), RECIPROCAL 1/(1 + |phi~|/sigma)
     phi_scale: float
     reward_sigma: float
     action_cost: float
@@ -128,7 +132,7 @@ def step_config(task: Task, feedback: str = "open", gains: Any = 1.0) -> StepCon
     names = model.param_names
     return StepConfig(
         dt=c.dt, substeps=c.substeps, bound=bound, lo=-bound, hi=bound.copy(), mode=FEEDBACK_MODES[feedback],
-        gains=k, singular_tol=model.singular_tol, bounded=c.reward == "bounded", phi_scale=c.phi_scale,
+        gains=k, singular_tol=model.singular_tol, reward_shape=REWARD_SHAPES[c.reward], phi_scale=c.phi_scale,
         reward_sigma=task.reward_sigma if c.reward_sigma is None else c.reward_sigma,
         action_cost=c.action_cost, reward_clip=c.reward_clip, obs_noise=c.obs_noise, obs_clip=c.obs_clip,
         impulse_prob=c.impulse_prob,
@@ -238,8 +242,9 @@ def finish_rows(rows: np.ndarray, buf: Buffers, cfg: StepConfig) -> None:
         if not obs_finite:
             buf.status[r] = STATUS_NONFINITE
         nonfinite = buf.status[r] == STATUS_NONFINITE
-        if cfg.bounded:
-            rew = math.exp(-buf.abs_phi_sf[r] / cfg.reward_sigma) - cost
+        if cfg.reward_shape != RAW:
+            x = buf.abs_phi_sf[r] / cfg.reward_sigma
+            rew = (math.exp(-x) if cfg.reward_shape == BOUNDED else 1.0 / (1.0 + x)) - cost
             if nonfinite or not rew == rew:
                 rew = 0.0
             buf.reward[r] = min(max(rew, 0.0), 1.0)

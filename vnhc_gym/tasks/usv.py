@@ -310,7 +310,7 @@ class USVStreamEnv(ConstraintEnv):
     | ``dt``            | 0.05      | control period (s)                                          |
     | ``substeps``      | 1         | RK4 steps per control period                                |
     | ``force_bound``   | 100.0     | largest force (N)                                           |
-    | ``reward``        | "bounded" | ``"bounded"`` (``-v1``) or ``"raw"`` (``-v0``)               |
+    | ``reward``        | "bounded" | ``"bounded"`` (``-v1``), ``"reciprocal"`` or ``"raw"`` (``-v0``) |
     | ``reward_sigma``  | 0.1       | width of the bounded reward                                 |
     | ``phi_scale``, ``reward_clip`` | 1, 100 | the raw reward's scale and clip                   |
     | ``action_cost``   | 0.0       | reward weight of ``a^2``                                    |

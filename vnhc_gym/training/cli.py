@@ -26,19 +26,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hyperparams", default=None, help="another RL Zoo file for the algorithm")
     parser.add_argument("-params", "--params", nargs="*", default=[], metavar="KEY:VALUE",
                         help="hyperparameter overrides, RL Zoo style (e.g. n_envs:64 learning_rate:1e-4)")
+    parser.add_argument("--env-kwargs", nargs="*", default=[], metavar="KEY:VALUE",
+                        help="arguments of the training environments only, RL Zoo style (e.g. reward:reciprocal); "
+                             "validation and test use the environment's defaults")
     parser.add_argument("--eval-points", type=int, default=d.eval_points, help="validation evaluations over the run")
     parser.add_argument("--test-episodes", type=int, default=d.test_episodes)
     parser.add_argument("--progress-bar", action="store_true", help="show SB3's progress bar")
 
 
-def _overrides(items: list[str]) -> dict[str, object]:
+def _overrides(items: list[str], option: str = "--params") -> dict[str, object]:
+    """``KEY:VALUE`` items as a dict (values parsed as Python literals where they are one)."""
     from vnhc_gym.training.hyperparams import parse_literal
 
     out: dict[str, object] = {}
     for item in items:
         key, sep, text = item.partition(":")
         if not sep or not key:
-            raise ValueError(f"--params takes KEY:VALUE items, got {item!r}")
+            raise ValueError(f"{option} takes KEY:VALUE items, got {item!r}")
         try:
             out[key] = parse_literal(text)
         except ValueError:
@@ -50,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
     from vnhc_gym.training.run import train
 
     names = {f.name for f in fields(TrainConfig)}
-    cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in names and k != "overrides"},
-                      overrides=_overrides(args.params))
+    cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in names and k not in ("overrides", "env_kwargs")},
+                      overrides=_overrides(args.params), env_kwargs=_overrides(args.env_kwargs, "--env-kwargs"))
     meta = train(cfg, log=print)
     summary = {"model": f"{cfg.out}/{meta['name']}.zip", "steps": meta["n_timesteps"],
                "steps_per_second": round(meta["steps_per_second"])}

@@ -30,7 +30,7 @@ import math
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -107,6 +107,7 @@ class TuneConfig:
     study: str | None = None  #: the study's name (default ``<task>-<scenario>-<algo>``)
     out: str = "tuned"
     threads: int = 1  #: torch threads per training run
+    env_kwargs: dict[str, Any] = field(default_factory=dict)  #: the training environments' arguments only
 
 
 def _check(cfg: TuneConfig) -> None:
@@ -152,7 +153,7 @@ def _learner_objective(cfg: TuneConfig, base: dict[str, Any], work: Path) -> Cal
             run = TrainConfig(algo=cfg.algo, env=cfg.env, scenario=cfg.scenario, seed=rep, n_timesteps=cfg.n_timesteps,
                               out=str(work), eval_points=cfg.eval_points, eval_episodes=cfg.eval_episodes,
                               test_episodes=0, threads=cfg.threads, overrides=overrides,
-                              name=f"trial{trial.number}-s{rep}")
+                              env_kwargs=dict(cfg.env_kwargs), name=f"trial{trial.number}-s{rep}")
             meta = train(run, on_validation=report)
             best.append(max(p["score"] for p in meta["curve"]))
         return float(sum(best) / len(best))
@@ -226,6 +227,7 @@ def tune(cfg: TuneConfig | None = None, log: Callable[[str], None] | None = prin
         winner = _merge(base, SPACES[cfg.algo](optuna.trial.FixedTrial(best.params)))
         (dest / f"{cfg.algo}.yml").write_text(
             f"# vnhc-gym tune: study {name}, best validation score {best.value:.6f} over {len(trials)} trials\n"
+            + (f"# trained with the environment arguments {cfg.env_kwargs} (--env-kwargs)\n" if cfg.env_kwargs else "")
             + yaml.safe_dump({env_id: dump_hyperparams(winner)}, sort_keys=False))
         summary["file"] = str(dest / f"{cfg.algo}.yml")
     else:
@@ -268,11 +270,17 @@ def add_arguments(parser: Any) -> None:
     parser.add_argument("--study", default=None, help="the study's name (default <task>-<scenario>-<algo>)")
     parser.add_argument("--out", default=d.out, help=f"output folder (default {d.out})")
     parser.add_argument("--threads", type=int, default=d.threads, help="torch threads per training run")
+    parser.add_argument("--env-kwargs", nargs="*", default=[], metavar="KEY:VALUE",
+                        help="arguments of the training environments only (e.g. reward:reciprocal); validation "
+                             "uses the environment's defaults")
 
 
 def run(args: Any) -> int:
     from dataclasses import fields
 
-    cfg = TuneConfig(**{f.name: getattr(args, f.name) for f in fields(TuneConfig)})
+    from vnhc_gym.training.cli import _overrides
+
+    cfg = TuneConfig(**{f.name: getattr(args, f.name) for f in fields(TuneConfig) if f.name != "env_kwargs"},
+                     env_kwargs=_overrides(args.env_kwargs, "--env-kwargs"))
     tune(cfg)
     return 0

@@ -1,0 +1,158 @@
+"""Tuned learners from scratch against the tuned law: how close does learning get?
+
+For each cell (task, scenario), learner and training reward: an Optuna study (``vnhc-gym tune``:
+TPE, median pruning, validation episodes only) with the same budget for every learner (``--trials``
+x ``--trial-steps`` env steps), then the winner and the shipped settings each trained from scratch
+with ``--seeds`` training seeds at the hyperparameter file's full budget and tested on 20 held-out
+episodes per seed.  The tuned law (the package's shipped gain for the cell) is tested on the same
+episodes.  Per row: the test score (mean and 95 % interval over every test episode of every seed),
+the share of episodes finished, the IQM of the episodes' mean ``|phi~|`` and its ratio to the tuned
+law's (the "x times the law's error" the floors speak of).  A training reward other than the
+environment's default (``--rewards reciprocal``: the long tail) changes only the training
+environments; validation and test use the default reward, so every row is on one scale.
+
+Everything is resumable: the studies live in ``<out>/tuned/studies.db`` and each finished training
+run's sidecar is kept (a rerun skips it).  Writes ``<out>/tune_learners.md`` and ``.json``.
+
+    python experiments/tune_learners.py                          # about 3 hours on 2 cores
+    python experiments/tune_learners.py --cells usv/nominal --learners ppo --trials 4 --trial-steps 100000
+    python experiments/tune_learners.py --cells flocking/nominal --rewards bounded reciprocal
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+CELLS = ["usv/nominal", "flocking/nominal"]
+LEARNERS = ["ppo", "sac"]
+
+
+def _unit(job: dict[str, Any]) -> list[dict[str, Any]]:
+    """One (cell, learner, reward): the study, then its winner's and the shipped settings' runs."""
+    import torch
+
+    from vnhc_gym.training import TrainConfig, train
+    from vnhc_gym.training.tune import TuneConfig, tune
+
+    torch.set_num_threads(1)
+    out = Path(job["out"])
+    task, scenario = job["cell"].split("/")
+    env_kwargs = {} if job["reward"] == "bounded" else {"reward": job["reward"]}
+    tag = f"{task}-{scenario}-{job['algo']}-{job['reward']}"
+    where = out / "tuned" / job["reward"]  # one folder per reward: its studies' winners never collide
+    where.mkdir(parents=True, exist_ok=True)
+    kept = out / "tuned" / f"{tag}.yml"
+    # ``vnhc-gym tune`` adds ``trials`` to a stored study; a rerun of this script adds only the missing ones.
+    done = _trials_so_far(where, tag)
+    if done < job["trials"] or not kept.exists():
+        tune(TuneConfig(algo=job["algo"], env=task, scenario=scenario, trials=max(1, job["trials"] - done),
+                        n_timesteps=job["trial_steps"], out=str(where), study=tag, env_kwargs=env_kwargs),
+             log=lambda line: print(line, flush=True))
+        kept.write_text((where / f"{task}-{scenario}" / f"{job['algo']}.yml").read_text())
+    summary = json.loads((where / f"{task}-{scenario}" / f"{job['algo']}-study.json").read_text())
+    rows = []
+    for settings, hyperparams in (("shipped", None), ("tuned", str(kept))):
+        metas = []
+        for seed in range(job["seeds"]):
+            name = f"{tag}-{settings}-s{seed}"
+            sidecar = out / "runs" / f"{name}.json"
+            if sidecar.exists():
+                metas.append(json.loads(sidecar.read_text()))
+                continue
+            metas.append(train(TrainConfig(algo=job["algo"], env=task, scenario=scenario, seed=seed,
+                                           n_timesteps=job["final_steps"], out=str(out / "runs"), name=name,
+                                           hyperparams=hyperparams, env_kwargs=env_kwargs)))
+        rows.append({"cell": job["cell"], "algo": job["algo"], "reward": job["reward"], "settings": settings,
+                     "study_best_validation": summary["best_value"] if settings == "tuned" else None,
+                     "study_trials": summary["n_trials"],
+                     "episodes": {k: [v for m in metas for v in m["test"]["metrics"][k]]
+                                  for k in ("score", "success", "mean_abs_phi_sf")},
+                     "train_seconds": [m["train_wall"] for m in metas]})
+    return rows
+
+
+def _trials_so_far(where: Path, study: str) -> int:
+    import optuna
+
+    try:
+        return len(optuna.load_study(study_name=study, storage=f"sqlite:///{(where / 'studies.db').resolve()}").trials)
+    except KeyError:  # no such study yet
+        return 0
+
+
+def _law(cell: str, episodes: int) -> dict[str, Any]:
+    """The tuned law on the test episodes of every training seed (the same seeds as the agents')."""
+    from vnhc_gym.baselines.tuning import evaluate_classical
+    from vnhc_gym.benchmark import settings
+    from vnhc_gym.evaluation import TEST_SEED
+    from vnhc_gym.tasks import env_id
+
+    task, scenario = cell.split("/")
+    gains = settings().get(task, {}).get(scenario, {}).get("tuned_law", {})
+    res = evaluate_classical("tuned_law", gains, env_id(task), scenario, episodes, TEST_SEED)
+    return {"cell": cell, "algo": "tuned_law", "reward": "-", "settings": json.dumps(gains),
+            "episodes": {k: res.metrics[k].tolist() for k in ("score", "success", "mean_abs_phi_sf")}}
+
+
+def _iqm(x: np.ndarray) -> float:
+    lo, hi = np.percentile(x, [25, 75])
+    return float(np.mean(x[(x >= lo) & (x <= hi)]))
+
+
+def _table(rows: list[dict[str, Any]]) -> str:
+    from vnhc_gym.stats import interval_estimates
+
+    law = {r["cell"]: _iqm(np.asarray(r["episodes"]["mean_abs_phi_sf"])) for r in rows if r["algo"] == "tuned_law"}
+    lines = ["| cell | agent | training reward | settings | test score [95 % CI] | finished | IQM mean abs phi~ "
+             "| x the tuned law's |", "|---|---|---|---|---|---:|---:|---:|"]
+    for r in rows:
+        score = np.asarray(r["episodes"]["score"])
+        iv = interval_estimates({"x": score[:, None]}, metric="mean", reps=2000)["x"]
+        phi = _iqm(np.asarray(r["episodes"]["mean_abs_phi_sf"]))
+        lines.append(f"| {r['cell']} | {r['algo']} | {r['reward']} | {r['settings']} | {iv.point:.4f} "
+                     f"[{iv.low:.4f}, {iv.high:.4f}] | {np.mean(r['episodes']['success']):.2f} | {phi:.3g} | "
+                     f"{phi / law[r['cell']]:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cells", nargs="+", default=CELLS, help="task/scenario pairs")
+    ap.add_argument("--learners", nargs="+", default=LEARNERS, choices=["ppo", "sac"])
+    ap.add_argument("--rewards", nargs="+", default=["bounded"], choices=["bounded", "reciprocal"],
+                    help="training rewards (each its own study)")
+    ap.add_argument("--trials", type=int, default=20, help="trials per study (the same for every learner)")
+    ap.add_argument("--trial-steps", type=int, default=300_000, help="env steps per trial")
+    ap.add_argument("--seeds", type=int, default=3, help="training seeds of each final run")
+    ap.add_argument("--final-steps", type=int, default=None, help="env steps of each final run "
+                    "(default: the hyperparameter file's)")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--out", default="results/tune_learners")
+    args = ap.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    jobs = [{"cell": c, "algo": a, "reward": w, "trials": args.trials, "trial_steps": args.trial_steps,
+             "seeds": args.seeds, "final_steps": args.final_steps, "out": str(out)}
+            for c in args.cells for a in args.learners for w in args.rewards]
+    # One torch and one XLA thread per process: several jobs never oversubscribe the cores.
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    # Every training run is tested on the same 20 episodes (seeds from TEST_SEED); so is the law.
+    rows: list[dict[str, Any]] = [_law(c, 20) for c in args.cells]
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        for unit in pool.map(_unit, jobs):
+            rows.extend(unit)
+    (out / "tune_learners.json").write_text(json.dumps(rows, indent=1) + "\n")
+    table = _table(rows)
+    (out / "tune_learners.md").write_text(table)
+    print(table)
+
+
+if __name__ == "__main__":
+    main()
