@@ -317,6 +317,23 @@ def test_a_verdict_says_why_from_the_numbers(tmp_path: Path) -> None:
                            "base on validation; from scratch 0.4050 behind")
 
 
+@pytest.mark.parametrize(("oracle", "says"), [
+    (0.902, "no headroom (the oracle is 0.0030 below the best classical)"),
+    (0.895, "the oracle scores below the best classical (-0.0100)"),
+])
+def test_an_oracle_below_the_best_classical_is_named_only_beyond_the_noise(tmp_path: Path, oracle: float,
+                                                                         says: str) -> None:
+    """Within ``NO_HEADROOM`` of the best classical baseline, above or below, the oracle leaves nothing
+    to win; only further below is it named as scoring below (and a failure share only if it fails)."""
+    rep = _report(tmp_path, [
+        _side("oracle", 0, [oracle] * 10, validation=oracle),
+        _side("tuned_law", 0, [0.90, 0.91] * 5, validation=0.90),
+        _side("residual_ppo", 0, [0.91, 0.90] * 5, [_point(0, 0.90, 0.88, 0.0), _point(100, 0.90, 0.88, 1.0)]),
+    ])
+    (cell,) = rep["verdicts"]
+    assert cell["why"].split("; ")[0] == says
+
+
 def test_published_records_restore_the_report(tmp_path: Path) -> None:
     """`save_records` then `restore_records` elsewhere gives the same report; a restored run is
     finished for a sweep, and a run already there is not overwritten."""

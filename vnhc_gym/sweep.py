@@ -568,7 +568,7 @@ def _why(winner: str, oracle: dict[str, Any] | None, best: dict[str, Any] | None
                 if top["success"] != best["success"] else "")
     if winner == "learned":
         return "; ".join(p for p in (f"{gap:+.4f} in score", finishes) if p)
-    if gap > 0:
+    if gap >= 5e-5:  # a gap that shows at the printed precision
         # A higher mean without the pairwise majority: the classical baseline's episodes mostly score
         # higher, and a few of them (typically failures) pull its mean down.
         parts.append(f"{top['algo']} has the higher mean ({gap:+.4f}) but not most pairwise comparisons")
@@ -576,11 +576,13 @@ def _why(winner: str, oracle: dict[str, Any] | None, best: dict[str, Any] | None
             parts.append(finishes)
     if oracle is not None:
         headroom = oracle["score"] - best["score"]
-        if headroom < 0:
-            parts.append(f"the oracle scores below the best classical ({headroom:+.4f}: it fails "
-                         f"{1 - oracle['success']:.0%} of the episodes)")
-        elif headroom <= NO_HEADROOM:
+        if headroom < -NO_HEADROOM:
+            fails = f": it fails {1 - oracle['success']:.0%} of the episodes" if oracle["success"] < 1 else ""
+            parts.append(f"the oracle scores below the best classical ({headroom:+.4f}{fails})")
+        elif headroom >= 0 and headroom <= NO_HEADROOM:
             parts.append(f"no headroom (the oracle is {headroom:+.4f} above the best classical)")
+        elif headroom < 0:
+            parts.append(f"no headroom (the oracle is {-headroom:.4f} below the best classical)")
     residual = [r for r in learned if r["algo"] in RESIDUAL_ALGOS]
     if residual and all(r.get("parity_steps") is None for r in residual):
         parts.append("no residual run beat its base on validation")
