@@ -192,11 +192,16 @@ def tune(cfg: TuneConfig | None = None, log: Callable[[str], None] | None = prin
     dest = Path(cfg.out) / cell
     dest.mkdir(parents=True, exist_ok=True)
     name = cfg.study or f"{cell}-{cfg.algo}"
-    storage = cfg.storage or f"sqlite:///{(Path(cfg.out) / 'studies.db').resolve()}"
+    url = cfg.storage or f"sqlite:///{(Path(cfg.out) / 'studies.db').resolve()}"
     learner = cfg.algo in SPACES
     # Pruning waits for a third of the first run's validations, and for five finished trials.
     pruner = optuna.pruners.MedianPruner(n_startup_trials=5, n_warmup_steps=max(1, cfg.eval_points // 3))
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    storage: Any = url
+    if url.split(":", 1)[0].split("+", 1)[0] in ("sqlite", "postgresql", "mysql"):
+        # A heartbeat lets a resumed study mark the trials of a killed process as failed (and not count
+        # them), while trials that other live processes run on a shared storage keep running.
+        storage = optuna.storages.RDBStorage(url, heartbeat_interval=60, grace_period=180)
     study = optuna.create_study(study_name=name, storage=storage, direction="maximize", load_if_exists=True,
                                 sampler=optuna.samplers.TPESampler(seed=cfg.seed), pruner=pruner)
     base = load_hyperparams(cfg.algo, env_id) if learner else {}
@@ -218,15 +223,15 @@ def tune(cfg: TuneConfig | None = None, log: Callable[[str], None] | None = prin
     trials = [{"number": t.number, "state": t.state.name, "value": t.value, "params": t.params,
                "seconds": (t.datetime_complete - t.datetime_start).total_seconds()
                if t.datetime_complete and t.datetime_start else None} for t in study.trials]
-    summary = {"study": name, "storage": storage, "algo": cfg.algo, "env_id": env_id, "scenario": cfg.scenario,
+    summary = {"study": name, "storage": url, "algo": cfg.algo, "env_id": env_id, "scenario": cfg.scenario,
                "config": asdict(cfg), "best_value": best.value, "best_params": best.params,
-               "n_trials": len(trials), "seconds_this_call": wall,
+               "n_trials": sum(t["state"] in ("COMPLETE", "PRUNED") for t in trials), "seconds_this_call": wall,
                "budget_env_steps_per_trial": cfg.repeats * cfg.n_timesteps if learner else 0, "trials": trials}
     if learner:
         # Replaying the winner's sampled parameters through the space gives its hyperparameters.
         winner = _merge(base, SPACES[cfg.algo](optuna.trial.FixedTrial(best.params)))
         (dest / f"{cfg.algo}.yml").write_text(
-            f"# vnhc-gym tune: study {name}, best validation score {best.value:.6f} over {len(trials)} trials\n"
+            f"# vnhc-gym tune: study {name}, best validation score {best.value:.6f} over {summary['n_trials']} trials\n"
             + (f"# trained with the environment arguments {cfg.env_kwargs} (--env-kwargs)\n" if cfg.env_kwargs else "")
             + yaml.safe_dump({env_id: dump_hyperparams(winner)}, sort_keys=False))
         summary["file"] = str(dest / f"{cfg.algo}.yml")
