@@ -68,7 +68,11 @@ def test_a_two_trial_study_writes_an_rl_zoo_file_and_never_reads_a_test_seed(tmp
     # Keys the space does not sample keep the shipped file's values.
     assert hp["policy_kwargs"]["activation_fn"] is shipped["policy_kwargs"]["activation_fn"]
     assert hp["normalize"] == shipped["normalize"] and hp["n_envs"] == shipped["n_envs"]
-    # The study is stored: the same command adds trials to it.
+    # The study is stored: the same command adds trials to it.  A trial left running by a killed process
+    # is not finished, so it does not count.
+    import optuna
+
+    optuna.load_study(study_name="usv-nominal-ppo", storage=f"sqlite:///{tmp_path / 'studies.db'}").ask()
     again = tune(cfg, log=None)
     assert again["n_trials"] == 4
     assert json.loads((tmp_path / "usv-nominal" / "ppo-study.json").read_text())["n_trials"] == 4

@@ -29,6 +29,7 @@ import json
 import math
 import tempfile
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -201,7 +202,9 @@ def tune(cfg: TuneConfig | None = None, log: Callable[[str], None] | None = prin
     if url.split(":", 1)[0].split("+", 1)[0] in ("sqlite", "postgresql", "mysql"):
         # A heartbeat lets a resumed study mark the trials of a killed process as failed (and not count
         # them), while trials that other live processes run on a shared storage keep running.
-        storage = optuna.storages.RDBStorage(url, heartbeat_interval=60, grace_period=180)
+        with warnings.catch_warnings():  # heartbeats are marked experimental; they have been in Optuna since 2.9
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            storage = optuna.storages.RDBStorage(url, heartbeat_interval=60, grace_period=180)
     study = optuna.create_study(study_name=name, storage=storage, direction="maximize", load_if_exists=True,
                                 sampler=optuna.samplers.TPESampler(seed=cfg.seed), pruner=pruner)
     base = load_hyperparams(cfg.algo, env_id) if learner else {}
