@@ -7,14 +7,16 @@ with ``--seeds`` training seeds at the hyperparameter file's full budget and tes
 episodes per seed.  The tuned law (the package's shipped gain for the cell) is tested on the same
 episodes.  Per row: the test score (mean and 95 % interval over every test episode of every seed),
 the share of episodes finished, the IQM of the episodes' mean ``|phi~|`` and its ratio to the tuned
-law's (the "x times the law's error" the floors speak of).  A training reward other than the
+law's (how many times the law's error).  A training reward other than the
 environment's default (``--rewards reciprocal``: the long tail) changes only the training
 environments; validation and test use the default reward, so every row is on one scale.
 
-Everything is resumable: the studies live in ``<out>/tuned/studies.db`` and each finished training
-run's sidecar is kept (a rerun skips it).  Writes ``<out>/tune_learners.md`` and ``.json``.
+Everything is resumable: the studies live in ``<out>/tuned/<reward>/studies.db`` and each finished
+training run's sidecar is kept (a rerun skips it).  Writes ``<out>/tune_learners.md`` and ``.json``
+(and the same two files to ``--publish``), with each study's cost in core-hours (its trials' wall
+times) and each final run's training minutes.
 
-    python experiments/tune_learners.py                          # about 3 hours on 2 cores
+    python experiments/tune_learners.py --cells usv/nominal --rewards bounded --publish docs/results/tune_learners
     python experiments/tune_learners.py --cells usv/nominal --learners ppo --trials 4 --trial-steps 100000
     python experiments/tune_learners.py --cells flocking/nominal --rewards bounded reciprocal
 """
@@ -72,6 +74,8 @@ def _unit(job: dict[str, Any]) -> list[dict[str, Any]]:
         rows.append({"cell": job["cell"], "algo": job["algo"], "reward": job["reward"], "settings": settings,
                      "study_best_validation": summary["best_value"] if settings == "tuned" else None,
                      "study_trials": summary["n_trials"],
+                     # What the study cost: every trial's wall time (a pruned trial stops early).
+                     "study_seconds": sum(t["seconds"] or 0.0 for t in summary["trials"]),
                      "episodes": {k: [v for m in metas for v in m["test"]["metrics"][k]]
                                   for k in ("score", "success", "mean_abs_phi_sf")},
                      "train_seconds": [m["train_wall"] for m in metas]})
@@ -108,19 +112,28 @@ def _iqm(x: np.ndarray) -> float:
     return float(np.mean(x[(x >= lo) & (x <= hi)]))
 
 
+def _cost(row: dict[str, Any]) -> str:
+    """The study's and the final runs' cost, the two last columns of a row."""
+    if row["algo"] == "tuned_law":
+        return "- | -"
+    study = f"{row['study_trials']}, {row['study_seconds'] / 3600:.2f}" if row["settings"] == "tuned" else "-"
+    return f"{study} | {np.mean(row['train_seconds']) / 60:.1f}"
+
+
 def _table(rows: list[dict[str, Any]]) -> str:
     from vnhc_gym.stats import interval_estimates
 
     law = {r["cell"]: _iqm(np.asarray(r["episodes"]["mean_abs_phi_sf"])) for r in rows if r["algo"] == "tuned_law"}
     lines = ["| cell | agent | training reward | settings | test score [95 % CI] | finished | IQM mean abs phi~ "
-             "| x the tuned law's |", "|---|---|---|---|---|---:|---:|---:|"]
+             "| x the tuned law's | study (trials, core-h) | training min/run |",
+             "|---|---|---|---|---|---:|---:|---:|---:|---:|"]
     for r in rows:
         score = np.asarray(r["episodes"]["score"])
         iv = interval_estimates({"x": score[:, None]}, metric="mean", reps=2000)["x"]
         phi = _iqm(np.asarray(r["episodes"]["mean_abs_phi_sf"]))
         lines.append(f"| {r['cell']} | {r['algo']} | {r['reward']} | {r['settings']} | {iv.point:.4f} "
                      f"[{iv.low:.4f}, {iv.high:.4f}] | {np.mean(r['episodes']['success']):.2f} | {phi:.3g} | "
-                     f"{phi / law[r['cell']]:.1f} |")
+                     f"{phi / law[r['cell']]:.1f} | {_cost(r)} |")
     return "\n".join(lines) + "\n"
 
 
@@ -139,6 +152,8 @@ def main() -> None:
                     help="combinations left out, e.g. usv/nominal:sac:reciprocal")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="results/tune_learners")
+    ap.add_argument("--publish", default=None, help="also write the table and the rows' JSON here "
+                    "(without the studies and the models)")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -155,9 +170,11 @@ def main() -> None:
         futures = {i: pool.submit(_unit, jobs[i]) for i in order}
         for i in range(len(jobs)):
             rows.extend(futures[i].result())
-    (out / "tune_learners.json").write_text(json.dumps(rows, indent=1) + "\n")
     table = _table(rows)
-    (out / "tune_learners.md").write_text(table)
+    for where in [out] + ([Path(args.publish)] if args.publish else []):
+        where.mkdir(parents=True, exist_ok=True)
+        (where / "tune_learners.json").write_text(json.dumps(rows, indent=1) + "\n")
+        (where / "tune_learners.md").write_text(table)
     print(table)
 
 
