@@ -202,7 +202,7 @@ def tune(cfg: TuneConfig | None = None, log: Callable[[str], None] | None = prin
     if url.split(":", 1)[0].split("+", 1)[0] in ("sqlite", "postgresql", "mysql"):
         # A heartbeat lets a resumed study mark the trials of a killed process as failed (and not count
         # them), while trials that other live processes run on a shared storage keep running.
-        with warnings.catch_warnings():  # heartbeats are marked experimental; they have been in Optuna since 2.9
+        with warnings.catch_warnings():  # Optuna marks heartbeats experimental: not news to the user
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
             storage = optuna.storages.RDBStorage(url, heartbeat_interval=60, grace_period=180)
     study = optuna.create_study(study_name=name, storage=storage, direction="maximize", load_if_exists=True,
