@@ -60,10 +60,14 @@ def _unit(job: dict[str, Any]) -> list[dict[str, Any]]:
         kept.write_text((where / f"{task}-{scenario}" / f"{job['algo']}.yml").read_text())
     summary = json.loads((where / f"{task}-{scenario}" / f"{job['algo']}-study.json").read_text())
     rows = []
+    # A run longer or shorter than the file's budget is named for its length: it never replaces a default run.
+    length = "" if job["final_steps"] is None else f"-{job['final_steps'] // 1000}k"
     for settings, hyperparams in (("shipped", None), ("tuned", str(kept))):
+        if settings not in job["settings"]:
+            continue
         metas = []
         for seed in range(job["seeds"]):
-            name = f"{tag}-{settings}-s{seed}"
+            name = f"{tag}-{settings}-s{seed}{length}"
             sidecar = out / "runs" / f"{name}.json"
             if sidecar.exists():
                 metas.append(json.loads(sidecar.read_text()))
@@ -72,6 +76,7 @@ def _unit(job: dict[str, Any]) -> list[dict[str, Any]]:
                                            n_timesteps=job["final_steps"], out=str(out / "runs"), name=name,
                                            hyperparams=hyperparams, env_kwargs=env_kwargs)))
         rows.append({"cell": job["cell"], "algo": job["algo"], "reward": job["reward"], "settings": settings,
+                     "steps": metas[0]["n_timesteps"],
                      "study_best_validation": summary["best_value"] if settings == "tuned" else None,
                      "study_trials": summary["n_trials"],
                      # What the study cost: every trial's wall time (a pruned trial stops early).
@@ -124,14 +129,15 @@ def _table(rows: list[dict[str, Any]]) -> str:
     from vnhc_gym.stats import interval_estimates
 
     law = {r["cell"]: _iqm(np.asarray(r["episodes"]["mean_abs_phi_sf"])) for r in rows if r["algo"] == "tuned_law"}
-    lines = ["| cell | agent | training reward | settings | test score [95 % CI] | finished | IQM mean abs phi~ "
-             "| x the tuned law's | study (trials, core-h) | training min/run |",
-             "|---|---|---|---|---|---:|---:|---:|---:|---:|"]
+    lines = ["| cell | agent | training reward | settings | steps | test score [95 % CI] | finished "
+             "| IQM mean abs phi~ | x the tuned law's | study (trials, core-h) | training min/run |",
+             "|---|---|---|---|---:|---|---:|---:|---:|---:|---:|"]
     for r in rows:
         score = np.asarray(r["episodes"]["score"])
         iv = interval_estimates({"x": score[:, None]}, metric="mean", reps=2000)["x"]
         phi = _iqm(np.asarray(r["episodes"]["mean_abs_phi_sf"]))
-        lines.append(f"| {r['cell']} | {r['algo']} | {r['reward']} | {r['settings']} | {iv.point:.4f} "
+        steps = f"{r['steps'] / 1e6:g} M" if r.get("steps") else "-"
+        lines.append(f"| {r['cell']} | {r['algo']} | {r['reward']} | {r['settings']} | {steps} | {iv.point:.4f} "
                      f"[{iv.low:.4f}, {iv.high:.4f}] | {np.mean(r['episodes']['success']):.2f} | {phi:.3g} | "
                      f"{phi / law[r['cell']]:.1f} | {_cost(r)} |")
     return "\n".join(lines) + "\n"
@@ -148,6 +154,8 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=3, help="training seeds of each final run")
     ap.add_argument("--final-steps", type=int, default=None, help="env steps of each final run "
                     "(default: the hyperparameter file's)")
+    ap.add_argument("--settings", nargs="+", default=["shipped", "tuned"], choices=["shipped", "tuned"],
+                    help="which final runs: the shipped hyperparameters, the study's winner, or both")
     ap.add_argument("--skip", nargs="*", default=[], metavar="CELL:LEARNER:REWARD",
                     help="combinations left out, e.g. usv/nominal:sac:reciprocal")
     ap.add_argument("--jobs", type=int, default=2)
@@ -158,7 +166,7 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     jobs = [{"cell": c, "algo": a, "reward": w, "trials": args.trials, "trial_steps": args.trial_steps,
-             "seeds": args.seeds, "final_steps": args.final_steps, "out": str(out)}
+             "seeds": args.seeds, "final_steps": args.final_steps, "settings": args.settings, "out": str(out)}
             for c in args.cells for a in args.learners for w in args.rewards if f"{c}:{a}:{w}" not in args.skip]
     # One torch and one XLA thread per process: several jobs never oversubscribe the cores.
     os.environ.setdefault("OMP_NUM_THREADS", "1")
