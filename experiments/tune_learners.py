@@ -52,13 +52,17 @@ def _unit(job: dict[str, Any]) -> list[dict[str, Any]]:
     where.mkdir(parents=True, exist_ok=True)
     kept = out / "tuned" / f"{tag}.yml"
     # ``vnhc-gym tune`` adds ``trials`` to a stored study; a rerun of this script adds only the missing ones.
-    done = _trials_so_far(where, tag)
-    if done < job["trials"] or not kept.exists():
-        tune(TuneConfig(algo=job["algo"], env=task, scenario=scenario, trials=max(1, job["trials"] - done),
-                        n_timesteps=job["trial_steps"], out=str(where), study=tag, env_kwargs=env_kwargs),
-             log=lambda line: print(line, flush=True))
-        kept.write_text((where / f"{task}-{scenario}" / f"{job['algo']}.yml").read_text())
-    summary = json.loads((where / f"{task}-{scenario}" / f"{job['algo']}-study.json").read_text())
+    # The study runs only when its winner is asked for: the shipped settings alone need none.
+    if "tuned" in job["settings"]:
+        done = _trials_so_far(where, tag)
+        if done < job["trials"] or not kept.exists():
+            tune(TuneConfig(algo=job["algo"], env=task, scenario=scenario, trials=max(1, job["trials"] - done),
+                            n_timesteps=job["trial_steps"], out=str(where), study=tag, env_kwargs=env_kwargs),
+                 log=lambda line: print(line, flush=True))
+            kept.write_text((where / f"{task}-{scenario}" / f"{job['algo']}.yml").read_text())
+    study_file = where / f"{task}-{scenario}" / f"{job['algo']}-study.json"
+    summary = json.loads(study_file.read_text()) if study_file.exists() else {"best_value": None, "n_trials": 0,
+                                                                              "trials": []}
     rows = []
     # A run longer or shorter than the file's budget is named for its length: it never replaces a default run.
     length = "" if job["final_steps"] is None else f"-{job['final_steps'] // 1000}k"
