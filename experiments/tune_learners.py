@@ -12,9 +12,9 @@ environment's default (``--rewards reciprocal``: the long tail) changes only the
 environments; validation and test use the default reward, so every row is on one scale.
 
 Everything is resumable: the studies live in ``<out>/tuned/<reward>/studies.db`` and each finished
-training run's sidecar is kept (a rerun skips it).  Writes ``<out>/tune_learners.md`` and ``.json``
-(and the same two files to ``--publish``), with each study's cost in core-hours (its trials' wall
-times) and each final run's training minutes.
+training run's sidecar is kept (a rerun skips it).  Writes ``<out>/tune_learners.md``, ``.json`` and
+``.png`` (each row's validation curve beside the law's level), and the same files to ``--publish``, with
+each study's cost in core-hours (its trials' wall times) and each final run's training minutes.
 
     python experiments/tune_learners.py --cells usv/nominal --rewards bounded --publish docs/results/tune_learners
     python experiments/tune_learners.py --cells usv/nominal --learners ppo --trials 4 --trial-steps 100000
@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 CELLS = ["usv/nominal", "flocking/nominal"]
+VALIDATION_EPISODES = 10  # as many as each training run's checkpoint evaluation (TrainConfig.eval_episodes)
 LEARNERS = ["ppo", "sac"]
 
 
@@ -87,7 +88,9 @@ def _unit(job: dict[str, Any]) -> list[dict[str, Any]]:
                      "study_seconds": sum(t["seconds"] or 0.0 for t in summary["trials"]),
                      "episodes": {k: [v for m in metas for v in m["test"]["metrics"][k]]
                                   for k in ("score", "success", "mean_abs_phi_sf")},
-                     "train_seconds": [m["train_wall"] for m in metas]})
+                     "train_seconds": [m["train_wall"] for m in metas],
+                     # Each seed's validation curve: (steps, IQM mean |phi~| over the validation episodes).
+                     "curves": [[(p["steps"], p["mean_abs_phi_sf"]) for p in m["curve"]] for m in metas]})
     return rows
 
 
@@ -106,14 +109,17 @@ def _law(cell: str, episodes: int) -> dict[str, Any]:
     """The tuned law on the test episodes of every training seed (the same seeds as the agents')."""
     from vnhc_gym.baselines.tuning import evaluate_classical
     from vnhc_gym.benchmark import settings
-    from vnhc_gym.evaluation import TEST_SEED
+    from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED
     from vnhc_gym.tasks import env_id
 
     task, scenario = cell.split("/")
     gains = settings().get(task, {}).get(scenario, {}).get("tuned_law", {})
     res = evaluate_classical("tuned_law", gains, env_id(task), scenario, episodes, TEST_SEED)
+    # The learners' curves are IQMs over the validation episodes of their checkpoints: the law's level on the same.
+    val = evaluate_classical("tuned_law", gains, env_id(task), scenario, VALIDATION_EPISODES, VALIDATION_SEED)
     return {"cell": cell, "algo": "tuned_law", "reward": "-", "settings": json.dumps(gains),
-            "episodes": {k: res.metrics[k].tolist() for k in ("score", "success", "mean_abs_phi_sf")}}
+            "episodes": {k: res.metrics[k].tolist() for k in ("score", "success", "mean_abs_phi_sf")},
+            "validation_iqm": _iqm(val.metrics["mean_abs_phi_sf"])}
 
 
 def _iqm(x: np.ndarray) -> float:
@@ -145,6 +151,37 @@ def _table(rows: list[dict[str, Any]]) -> str:
                      f"[{iv.low:.4f}, {iv.high:.4f}] | {np.mean(r['episodes']['success']):.2f} | {phi:.3g} | "
                      f"{phi / law[r['cell']]:.1f} | {_cost(r)} |")
     return "\n".join(lines) + "\n"
+
+
+def _plot(rows: list[dict[str, Any]], path: Path) -> None:
+    """Per cell, each row's median validation curve over its seeds (log scale), and the tuned law's level."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cells = list(dict.fromkeys(r["cell"] for r in rows))
+    fig, axes = plt.subplots(1, len(cells), figsize=(5.5 * len(cells), 4.0), squeeze=False)
+    for ax, cell in zip(axes[0], cells, strict=True):
+        for r in rows:
+            if r["cell"] != cell:
+                continue
+            if r["algo"] == "tuned_law":
+                ax.axhline(r["validation_iqm"], color="black", ls="--", lw=1, label="tuned law")
+                continue
+            n = min(len(c) for c in r["curves"])  # seeds of one row share their evaluation points
+            steps = np.array([p[0] for p in r["curves"][0][:n]], dtype=float)
+            phi = np.median([[p[1] for p in c[:n]] for c in r["curves"]], axis=0)
+            ax.plot(steps[1:] / 1e6, phi[1:], lw=1.2,  # step 0 (the untrained net) would only stretch the axis
+                    label=f"{r['algo']} {r['settings']} ({r['reward']}, {r['steps'] / 1e6:g} M)")
+        ax.set_yscale("log")
+        ax.set_title(cell, fontsize=10)
+        ax.set_xlabel("env steps (millions)")
+        ax.set_ylabel("validation IQM of mean |phi~| (median of seeds)")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def main() -> None:
@@ -187,6 +224,8 @@ def main() -> None:
         where.mkdir(parents=True, exist_ok=True)
         (where / "tune_learners.json").write_text(json.dumps(rows, indent=1) + "\n")
         (where / "tune_learners.md").write_text(table)
+        if any("curves" in r for r in rows):
+            _plot(rows, where / "tune_learners.png")
     print(table)
 
 
