@@ -12,13 +12,20 @@ environment's default (``--rewards reciprocal``: the long tail) changes only the
 environments; validation and test use the default reward, so every row is on one scale.
 
 Everything is resumable: the studies live in ``<out>/tuned/<reward>/studies.db`` and each finished
-training run's sidecar is kept (a rerun skips it).  Writes ``<out>/tune_learners.md``, ``.json`` and
-``.png`` (each row's validation curve beside the law's level), and the same files to ``--publish``, with
-each study's cost in core-hours (its trials' wall times) and each final run's training minutes.
+training run's sidecar is kept (a rerun skips it).  ``--settings`` chooses the final runs (a study runs
+only for ``tuned``); ``--final-steps`` trains for another budget, under a name of its own.  The report
+covers every finished run of the cells in ``<out>/runs``, whichever invocation trained it: one row per
+learner, training reward, settings and budget.  Writes ``<out>/tune_learners.md``, ``.json`` and ``.png``
+(each row's validation curve beside the law's level on the same episodes), and the same files to
+``--publish``, with each study's cost in core-hours (its trials' wall times) and each final run's
+training minutes.
 
-    python experiments/tune_learners.py --cells usv/nominal --rewards bounded --publish docs/results/tune_learners
     python experiments/tune_learners.py --cells usv/nominal --learners ppo --trials 4 --trial-steps 100000
-    python experiments/tune_learners.py --cells flocking/nominal --rewards bounded reciprocal
+    python experiments/tune_learners.py --rewards bounded                        # both cells, both learners
+    python experiments/tune_learners.py --cells flocking/nominal --rewards reciprocal --settings shipped
+    python experiments/tune_learners.py --cells usv/nominal --learners sac --settings tuned --seeds 1 \
+        --final-steps 3000000                                                     # a longer run
+    python experiments/tune_learners.py --report-only --publish docs/results/tune_learners
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -37,8 +45,8 @@ VALIDATION_EPISODES = 10  # as many as each training run's checkpoint evaluation
 LEARNERS = ["ppo", "sac"]
 
 
-def _unit(job: dict[str, Any]) -> list[dict[str, Any]]:
-    """One (cell, learner, reward): the study, then its winner's and the shipped settings' runs."""
+def _unit(job: dict[str, Any]) -> None:
+    """One (cell, learner, reward): the study, then its winner's and/or the shipped settings' runs."""
     import torch
 
     from vnhc_gym.training import TrainConfig, train
@@ -61,31 +69,45 @@ def _unit(job: dict[str, Any]) -> list[dict[str, Any]]:
                             n_timesteps=job["trial_steps"], out=str(where), study=tag, env_kwargs=env_kwargs),
                  log=lambda line: print(line, flush=True))
             kept.write_text((where / f"{task}-{scenario}" / f"{job['algo']}.yml").read_text())
-    study_file = where / f"{task}-{scenario}" / f"{job['algo']}-study.json"
-    summary = json.loads(study_file.read_text()) if study_file.exists() else {"best_value": None, "n_trials": 0,
-                                                                              "trials": []}
-    rows = []
     # A run longer or shorter than the file's budget is named for its length: it never replaces a default run.
     length = "" if job["final_steps"] is None else f"-{job['final_steps'] // 1000}k"
     for settings, hyperparams in (("shipped", None), ("tuned", str(kept))):
-        if settings not in job["settings"]:
-            continue
-        metas = []
-        for seed in range(job["seeds"]):
+        for seed in range(job["seeds"]) if settings in job["settings"] else ():
             name = f"{tag}-{settings}-s{seed}{length}"
-            sidecar = out / "runs" / f"{name}.json"
-            if sidecar.exists():
-                metas.append(json.loads(sidecar.read_text()))
-                continue
-            metas.append(train(TrainConfig(algo=job["algo"], env=task, scenario=scenario, seed=seed,
-                                           n_timesteps=job["final_steps"], out=str(out / "runs"), name=name,
-                                           hyperparams=hyperparams, env_kwargs=env_kwargs)))
-        rows.append({"cell": job["cell"], "algo": job["algo"], "reward": job["reward"], "settings": settings,
-                     "steps": metas[0]["n_timesteps"],
-                     "study_best_validation": summary["best_value"] if settings == "tuned" else None,
-                     "study_trials": summary["n_trials"],
+            if not (out / "runs" / f"{name}.json").exists():
+                train(TrainConfig(algo=job["algo"], env=task, scenario=scenario, seed=seed,
+                                  n_timesteps=job["final_steps"], out=str(out / "runs"), name=name,
+                                  hyperparams=hyperparams, env_kwargs=env_kwargs))
+
+
+#: A final run's name: ``<task>-<scenario>-<algo>-<reward>-<settings>-s<seed>[-<k>k]``.
+RUN_NAME = re.compile(r"^(?P<task>[a-z]+)-(?P<scenario>[a-z_]+)-(?P<algo>[a-z]+)-(?P<reward>[a-z]+)"
+                      r"-(?P<settings>shipped|tuned)-s(?P<seed>\d+)(?:-\d+k)?$")
+
+
+def _rows(out: Path, cells: list[str]) -> list[dict[str, Any]]:
+    """One row per (cell, learner, reward, settings, length) of every finished run in ``<out>/runs``."""
+    groups: dict[tuple[str, ...], list[dict[str, Any]]] = {}
+    for sidecar in sorted((out / "runs").glob("*.json")):
+        meta = json.loads(sidecar.read_text())
+        m = RUN_NAME.match(meta.get("name", ""))
+        cell = f"{m['task']}/{m['scenario']}" if m else None
+        if m is None or cell not in cells:
+            continue
+        key = (cell, m["algo"], m["reward"], m["settings"], str(meta["n_timesteps"]))
+        groups.setdefault(key, []).append(meta)
+    rows = []
+    for (cell, algo, reward, settings, steps), metas in sorted(
+            groups.items(), key=lambda kv: (cells.index(kv[0][0]), kv[0][1:4], int(kv[0][4]))):
+        task, scenario = cell.split("/")
+        study = out / "tuned" / reward / f"{task}-{scenario}" / f"{algo}-study.json"
+        summary = json.loads(study.read_text()) if settings == "tuned" and study.exists() else None
+        rows.append({"cell": cell, "algo": algo, "reward": reward, "settings": settings, "steps": int(steps),
+                     "seeds": [m["seed"] for m in metas],
+                     "study_best_validation": summary["best_value"] if summary else None,
+                     "study_trials": summary["n_trials"] if summary else None,
                      # What the study cost: every trial's wall time (a pruned trial stops early).
-                     "study_seconds": sum(t["seconds"] or 0.0 for t in summary["trials"]),
+                     "study_seconds": sum(t["seconds"] or 0.0 for t in summary["trials"]) if summary else None,
                      "episodes": {k: [v for m in metas for v in m["test"]["metrics"][k]]
                                   for k in ("score", "success", "mean_abs_phi_sf")},
                      "train_seconds": [m["train_wall"] for m in metas],
@@ -139,17 +161,18 @@ def _table(rows: list[dict[str, Any]]) -> str:
     from vnhc_gym.stats import interval_estimates
 
     law = {r["cell"]: _iqm(np.asarray(r["episodes"]["mean_abs_phi_sf"])) for r in rows if r["algo"] == "tuned_law"}
-    lines = ["| cell | agent | training reward | settings | steps | test score [95 % CI] | finished "
+    lines = ["| cell | agent | training reward | settings | steps | seeds | test score [95 % CI] | finished "
              "| IQM mean abs phi~ | x the tuned law's | study (trials, core-h) | training min/run |",
-             "|---|---|---|---|---:|---|---:|---:|---:|---:|---:|"]
+             "|---|---|---|---|---:|---:|---|---:|---:|---:|---:|---:|"]
     for r in rows:
         score = np.asarray(r["episodes"]["score"])
         iv = interval_estimates({"x": score[:, None]}, metric="mean", reps=2000)["x"]
         phi = _iqm(np.asarray(r["episodes"]["mean_abs_phi_sf"]))
         steps = f"{r['steps'] / 1e6:g} M" if r.get("steps") else "-"
-        lines.append(f"| {r['cell']} | {r['algo']} | {r['reward']} | {r['settings']} | {steps} | {iv.point:.4f} "
-                     f"[{iv.low:.4f}, {iv.high:.4f}] | {np.mean(r['episodes']['success']):.2f} | {phi:.3g} | "
-                     f"{phi / law[r['cell']]:.1f} | {_cost(r)} |")
+        seeds = len(r["seeds"]) if "seeds" in r else "-"
+        lines.append(f"| {r['cell']} | {r['algo']} | {r['reward']} | {r['settings']} | {steps} | {seeds} "
+                     f"| {iv.point:.4f} [{iv.low:.4f}, {iv.high:.4f}] | {np.mean(r['episodes']['success']):.2f} "
+                     f"| {phi:.3g} | {phi / law[r['cell']]:.1f} | {_cost(r)} |")
     return "\n".join(lines) + "\n"
 
 
@@ -201,8 +224,9 @@ def main() -> None:
                     help="combinations left out, e.g. usv/nominal:sac:reciprocal")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="results/tune_learners")
-    ap.add_argument("--publish", default=None, help="also write the table and the rows' JSON here "
-                    "(without the studies and the models)")
+    ap.add_argument("--publish", default=None, help="also write the table, the figure and the rows' JSON "
+                    "here (without the studies and the models)")
+    ap.add_argument("--report-only", action="store_true", help="train nothing: the report of the finished runs")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -211,21 +235,21 @@ def main() -> None:
             for c in args.cells for a in args.learners for w in args.rewards if f"{c}:{a}:{w}" not in args.skip]
     # One torch and one XLA thread per process: several jobs never oversubscribe the cores.
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    if not args.report_only:
+        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+            # The slow learner's units start first, so that the cores stay busy to the end.
+            for future in [pool.submit(_unit, j) for j in sorted(jobs, key=lambda j: j["algo"] != "sac")]:
+                future.result()
     # Every training run is tested on the same 20 episodes (seeds from TEST_SEED); so is the law.
-    rows: list[dict[str, Any]] = [_law(c, 20) for c in args.cells]
-    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        # The slow learner's units start first, so that the cores stay busy to the end; rows keep their order.
-        order = sorted(range(len(jobs)), key=lambda i: jobs[i]["algo"] != "sac")
-        futures = {i: pool.submit(_unit, jobs[i]) for i in order}
-        for i in range(len(jobs)):
-            rows.extend(futures[i].result())
+    rows: list[dict[str, Any]] = []
+    for cell in args.cells:
+        rows += [_law(cell, 20)] + _rows(out, [cell])
     table = _table(rows)
     for where in [out] + ([Path(args.publish)] if args.publish else []):
         where.mkdir(parents=True, exist_ok=True)
         (where / "tune_learners.json").write_text(json.dumps(rows, indent=1) + "\n")
         (where / "tune_learners.md").write_text(table)
-        if any("curves" in r for r in rows):
-            _plot(rows, where / "tune_learners.png")
+        _plot(rows, where / "tune_learners.png")
     print(table)
 
 
