@@ -153,7 +153,8 @@ def _cost(row: dict[str, Any]) -> str:
     """The study's and the final runs' cost, the two last columns of a row."""
     if row["algo"] == "tuned_law":
         return "- | -"
-    study = f"{row['study_trials']}, {row['study_seconds'] / 3600:.2f}" if row["settings"] == "tuned" else "-"
+    # Only a tuned row has a study (none is stored for a winner copied in by hand).
+    study = "-" if row.get("study_trials") is None else f"{row['study_trials']}, {row['study_seconds'] / 3600:.2f}"
     return f"{study} | {np.mean(row['train_seconds']) / 60:.1f}"
 
 

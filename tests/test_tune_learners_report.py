@@ -1,0 +1,71 @@
+"""The learner-tuning experiment's report: its rows group the finished runs as their names say, and its
+ratio to the law is the IQM computed by hand."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+import pytest
+
+SCRIPT = Path(__file__).resolve().parent.parent / "experiments" / "tune_learners.py"
+
+
+@pytest.fixture(scope="module")
+def script() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("tune_learners", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _sidecar(runs: Path, name: str, seed: int, steps: int, phi: list[float]) -> None:
+    meta = {"name": name, "seed": seed, "n_timesteps": steps, "train_wall": 60.0 * (seed + 1),
+            "curve": [{"steps": 0, "mean_abs_phi_sf": 1.0}, {"steps": steps, "mean_abs_phi_sf": min(phi)}],
+            "test": {"metrics": {"score": [0.9] * len(phi), "success": [1.0] * len(phi), "mean_abs_phi_sf": phi}}}
+    (runs / f"{name}.json").write_text(json.dumps(meta))
+
+
+def test_rows_group_runs_by_learner_reward_settings_and_budget(script: ModuleType, tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    for seed in range(3):
+        _sidecar(runs, f"usv-nominal-sac-bounded-tuned-s{seed}", seed, 1_000_000, [0.1, 0.2, 0.3, 0.4])
+    _sidecar(runs, "usv-nominal-sac-bounded-tuned-s0-3000k", 0, 3_000_000, [0.01, 0.02, 0.03, 0.04])
+    _sidecar(runs, "usv-nominal-ppo-reciprocal-shipped-s1", 1, 2_000_000, [0.5, 0.5, 0.5, 0.5])
+    _sidecar(runs, "flocking-nominal-ppo-bounded-shipped-s0", 0, 2_000_000, [1.0])  # another cell
+    _sidecar(runs, "sac-usv-nominal-s0", 0, 1_000, [1.0])  # a run of another experiment
+    rows = script._rows(tmp_path, ["usv/nominal"])
+    keys = [(r["algo"], r["reward"], r["settings"], r["steps"], r["seeds"]) for r in rows]
+    assert keys == [("ppo", "reciprocal", "shipped", 2_000_000, [1]),
+                    ("sac", "bounded", "tuned", 1_000_000, [0, 1, 2]),
+                    ("sac", "bounded", "tuned", 3_000_000, [0])]
+    assert rows[1]["train_seconds"] == [60.0, 120.0, 180.0]
+    assert len(rows[1]["episodes"]["mean_abs_phi_sf"]) == 12 and len(rows[1]["curves"]) == 3
+    assert rows[1]["study_trials"] is None  # no study stored: the row says so instead of inventing one
+    # IQM of the seeds' twelve episodes: the middle half (0.2 and 0.3) against the law's 0.1; 2 minutes a run.
+    assert "| 0.25 | 2.5 | - | 2.0 |" in script._table([_law_row([0.1] * 4), rows[1]])
+
+
+def _law_row(phi: list[float]) -> dict[str, Any]:
+    return {"cell": "usv/nominal", "algo": "tuned_law", "reward": "-", "settings": "{}",
+            "episodes": {"score": [1.0] * len(phi), "success": [1.0] * len(phi), "mean_abs_phi_sf": phi}}
+
+
+def test_table_ratio_is_the_iqm_over_the_laws(script: ModuleType) -> None:
+    law = _law_row([0.001, 0.002, 0.003, 100.0])
+    agent = {"cell": "usv/nominal", "algo": "sac", "reward": "bounded", "settings": "shipped", "steps": 10**6,
+             "seeds": [0], "episodes": {"score": [0.5] * 4, "success": [1.0, 1.0, 0.0, 1.0],
+                                        "mean_abs_phi_sf": [0.01, 0.02, 0.03, 100.0]},
+             "train_seconds": [120.0], "study_trials": None, "study_seconds": None}
+    table = script._table([law, agent])
+    # The middle half of each four episodes: (0.002 + 0.003) / 2 and (0.02 + 0.03) / 2, ten times the law's.
+    row = next(line for line in table.splitlines() if "| sac |" in line).split("|")
+    assert float(row[9]) == pytest.approx(0.025) and float(row[10]) == pytest.approx(10.0)
+    assert float(row[8]) == pytest.approx(0.75) and row[12].strip() == "2.0"
+    assert np.isclose(script._iqm(np.array([1.0, 2.0, 3.0, 4.0])), 2.5)
