@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from vnhc_gym.tasks import env_ids
@@ -103,3 +104,20 @@ def test_residual_safeguards_quick_runs_every_variant(tmp_path: Path) -> None:
     assert [r["variant"] for r in rows] == ["shipped", "warm-up", "small", "warm-up + small"]
     assert all(0 < r["base"] <= 1 and r["best"] >= r["base"] for r in rows)
     assert (out / "residual_safeguards.md").read_text() in proc.stdout
+
+
+@pytest.mark.slow
+def test_imitation_bound_fits_a_network_and_tests_it_beside_the_law(tmp_path: Path) -> None:
+    """A tiny fit runs end to end; each row's ratio is its test episodes' IQM over the law's."""
+    out = tmp_path / "imitation"
+    proc = subprocess.run([sys.executable, str(EXPERIMENTS / "imitation_bound.py"), "--cells", "usv/nominal",
+                           "--widths", "8", "--rounds", "2", "--epochs", "1", "--final-epochs", "1", "--n-envs", "4",
+                           "--out", str(out)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    (row,) = json.loads((out / "imitation_bound.json").read_text())
+    phi = np.sort(np.asarray(row["episodes"]["mean_abs_phi_sf"]))
+    assert len(phi) == 20 and row["samples"] == 2 * 4 * 400  # two rounds of four 400-step episodes
+    lo, hi = np.percentile(phi, [25, 75])
+    assert row["iqm"] == pytest.approx(phi[(phi >= lo) & (phi <= hi)].mean())
+    assert row["ratio"] == pytest.approx(row["iqm"] / row["law_iqm"])
+    assert "| usv/nominal | tuned law |" in (out / "imitation_bound.md").read_text()
