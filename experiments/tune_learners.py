@@ -55,7 +55,8 @@ def _unit(job: dict[str, Any]) -> None:
     torch.set_num_threads(1)
     out = Path(job["out"])
     task, scenario = job["cell"].split("/")
-    env_kwargs = {} if job["reward"] == "bounded" else {"reward": job["reward"]}
+    # Named even when it is the default: it overrides a hyperparameter file's own env_kwargs.
+    env_kwargs = {"reward": job["reward"]}
     tag = f"{task}-{scenario}-{job['algo']}-{job['reward']}"
     where = out / "tuned" / job["reward"]  # one folder per reward: its studies' winners never collide
     where.mkdir(parents=True, exist_ok=True)

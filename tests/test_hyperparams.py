@@ -503,6 +503,7 @@ while True:
         break
     env = env.env
 json.dump(dict(cls=f"{type(model).__module__}.{type(model).__qualname__}", n_envs=model.get_env().num_envs,
+               reward=env.unwrapped.config.reward,
                net_arch=model.policy_kwargs.get("net_arch"), wrappers=chain,
                attributes={k: getattr(model, k) for k in ("batch_size", "learning_starts", "gradient_steps", "gamma",
                                                           "tau", "buffer_size")},
@@ -513,9 +514,10 @@ SMALL_SAC = {"n_envs": 2, "learning_starts": 64, "batch_size": 64, "buffer_size"
 
 @needs_rl_zoo
 @pytest.mark.parametrize("algo", SAC_FILES)
-def test_rl_zoo_loads_the_sac_files(tmp_path, algo):
-    """RL Zoo's ExperimentManager builds stable-baselines3's SAC from each SAC file, as the file says."""
-    env_id = V1_IDS[0]
+@pytest.mark.parametrize("env_id", V1_IDS)
+def test_rl_zoo_loads_the_sac_files(tmp_path, algo, env_id):
+    """RL Zoo's ExperimentManager builds stable-baselines3's SAC from each SAC file, as the file says,
+    on training environments with the file's env_kwargs (the flock's long-tailed reward)."""
     out = tmp_path / "sac.json"
     proc = subprocess.run([sys.executable, "-c", _ZOO_SAC_SCRIPT, str(hyperparams_path(algo)), env_id,
                            json.dumps(SMALL_SAC), str(out), str(tmp_path / "logs")],
@@ -524,6 +526,7 @@ def test_rl_zoo_loads_the_sac_files(tmp_path, algo):
     result = json.loads(out.read_text())
     hp = {**load_hyperparams(algo, env_id), **SMALL_SAC}
     assert result["cls"] == "stable_baselines3.sac.sac.SAC" and result["n_envs"] == SMALL_SAC["n_envs"]
+    assert result["reward"] == hp.get("env_kwargs", {}).get("reward", "bounded")
     assert result["net_arch"] == hp["policy_kwargs"]["net_arch"]
     assert result["learning_rate"] == pytest.approx(hp["learning_rate"])
     for key, value in result["attributes"].items():

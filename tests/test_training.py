@@ -358,3 +358,28 @@ def test_a_short_residual_run_on_a_stateful_base_keeps_its_final_model_near_the_
     assert base["steps"] == 0 and final["steps"] == 5 * 256 * 64
     assert abs(final["score"] - base["score"]) <= 0.1 * base["score"]
     assert (tmp_path / f"{meta['name']}-final.zip").is_file()
+
+
+def test_a_files_env_kwargs_shape_the_training_envs_only_and_the_callers_win(tmp_path: Path,
+                                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """As RL Zoo: a section's ``env_kwargs`` reach the training environments (not the validation ones),
+    and ``TrainConfig.env_kwargs`` (``--env-kwargs``) override them."""
+    made: list[Any] = []
+    real = gym.make_vec
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        made.append(kwargs.get("reward"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(gym, "make_vec", spy)
+    common = dict(algo="ppo", env="usv", n_timesteps=512, out=str(tmp_path), eval_points=1, eval_episodes=2,
+                  test_episodes=0)
+    meta = train(TrainConfig(**common, overrides={**TINY, "env_kwargs": {"reward": "raw"}}))  # type: ignore[arg-type]
+    assert made[0] == "raw" and set(made[1:]) == {None}  # validations run the environment's own reward
+    assert meta["config"]["env_kwargs"] == {"reward": "raw"} and "env_kwargs" not in meta["hyperparams"]
+    made.clear()
+    meta = train(TrainConfig(**common, overrides={**TINY, "env_kwargs": {"reward": "raw"}},  # type: ignore[arg-type]
+                             env_kwargs={"reward": "reciprocal"}))
+    assert made[0] == "reciprocal" and meta["config"]["env_kwargs"] == {"reward": "reciprocal"}
+    with pytest.raises(ValueError, match="env_kwargs must be a mapping"):
+        train(TrainConfig(**common, overrides={**TINY, "env_kwargs": "reward=raw"}))  # type: ignore[arg-type]

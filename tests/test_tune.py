@@ -50,7 +50,7 @@ def _never_test(calls: list[tuple[int, int]]) -> None:
 def test_a_two_trial_study_writes_an_rl_zoo_file_and_never_reads_a_test_seed(tmp_path: Path,
                                                                            seeds: list[tuple[int, int]]) -> None:
     cfg = TuneConfig(algo="ppo", env="usv", trials=2, n_timesteps=4096, eval_points=2, eval_episodes=2,
-                     out=str(tmp_path))
+                     out=str(tmp_path), env_kwargs={"reward": "reciprocal"})
     lines: list[str] = []
     summary = tune(cfg, log=lines.append)
     _never_test(seeds)
@@ -68,6 +68,8 @@ def test_a_two_trial_study_writes_an_rl_zoo_file_and_never_reads_a_test_seed(tmp
     # Keys the space does not sample keep the shipped file's values.
     assert hp["policy_kwargs"]["activation_fn"] is shipped["policy_kwargs"]["activation_fn"]
     assert hp["normalize"] == shipped["normalize"] and hp["n_envs"] == shipped["n_envs"]
+    # The trials trained on the long-tailed reward: so does the winner's file.
+    assert hp["env_kwargs"] == {"reward": "reciprocal"} and "env_kwargs" not in shipped
     # The study is stored: the same command adds trials to it.  A trial left running by a killed process
     # is not finished, so it does not count.
     import optuna

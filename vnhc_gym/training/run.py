@@ -36,7 +36,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -94,7 +94,8 @@ class TrainConfig:
     threads: int = 1  #: torch threads: 1 never oversubscribes the cores (experiments/bench_train.py)
     hyperparams: str | None = None  #: another RL Zoo file for the algorithm
     overrides: dict[str, Any] = field(default_factory=dict)  #: hyperparameters that replace the file's
-    env_kwargs: dict[str, Any] = field(default_factory=dict)  #: environment arguments of the training envs only
+    #: Environment arguments of the training envs only, over the file's ``env_kwargs`` (as RL Zoo's ``--env-kwargs``)
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
     progress_bar: bool = False
     residual_base: str | None = None  #: the residual's base controller (a classical baseline's name)
     residual_base_settings: dict[str, Any] | None = None  #: its settings (gain, alpha, ...)
@@ -228,6 +229,11 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
     env_id = resolve_env_id(cfg.env)
     hp = load_hyperparams(cfg.algo, env_id, cfg.hyperparams)
     hp.update(cfg.overrides)
+    # A file's env_kwargs shape the training environments only, as in RL Zoo; the caller's win a clash.
+    file_env_kwargs = hp.pop("env_kwargs", None) or {}
+    if not isinstance(file_env_kwargs, dict):
+        raise ValueError(f"the hyperparameter file's env_kwargs must be a mapping, got {file_env_kwargs!r}")
+    cfg = replace(cfg, env_kwargs={**file_env_kwargs, **cfg.env_kwargs})
     n_envs = int(hp.pop("n_envs", 8))
     n_timesteps = int(cfg.n_timesteps if cfg.n_timesteps is not None else hp.pop("n_timesteps", 1e6))
     hp.pop("n_timesteps", None)

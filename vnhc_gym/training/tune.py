@@ -233,9 +233,12 @@ def tune(cfg: TuneConfig | None = None, log: Callable[[str], None] | None = prin
     if learner:
         # Replaying the winner's sampled parameters through the space gives its hyperparameters.
         winner = _merge(base, SPACES[cfg.algo](optuna.trial.FixedTrial(best.params)))
+        # The training environments' arguments its trials had (the file's, under --env-kwargs): the file trains alike.
+        env_kwargs = {**(base.get("env_kwargs") or {}), **cfg.env_kwargs}
+        if env_kwargs:
+            winner["env_kwargs"] = env_kwargs
         (dest / f"{cfg.algo}.yml").write_text(
             f"# vnhc-gym tune: study {name}, best validation score {best.value:.6f} over {summary['n_trials']} trials\n"
-            + (f"# trained with the environment arguments {cfg.env_kwargs} (--env-kwargs)\n" if cfg.env_kwargs else "")
             + yaml.safe_dump({env_id: dump_hyperparams(winner)}, sort_keys=False))
         summary["file"] = str(dest / f"{cfg.algo}.yml")
     else:
