@@ -13,7 +13,8 @@ the learners; widths side by side show which.
 Training episodes use seeds below the validation seeds; nothing is chosen on the test episodes.
 Writes ``<out>/imitation_bound.md`` and ``.json``.
 
-    python experiments/imitation_bound.py                                 # both cells, widths 64 128 256
+    python experiments/imitation_bound.py --out docs/results/imitation_bound   # both cells, width 64
+    python experiments/imitation_bound.py --widths 64 128 256 --rounds 4 --final-epochs 200  # a shorter fit
     python experiments/imitation_bound.py --cells usv/nominal --widths 64 --rounds 2 --epochs 5   # quick
 """
 
@@ -139,10 +140,10 @@ def _iqm(x: np.ndarray) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cells", nargs="+", default=["usv/nominal", "flocking/nominal"])
-    ap.add_argument("--widths", nargs="+", type=int, default=[64, 128, 256], help="units of each hidden layer")
-    ap.add_argument("--rounds", type=int, default=4, help="collection rounds (the first runs the law)")
+    ap.add_argument("--widths", nargs="+", type=int, default=[64], help="units of each hidden layer")
+    ap.add_argument("--rounds", type=int, default=8, help="collection rounds (the first runs the law)")
     ap.add_argument("--epochs", type=int, default=20, help="passes over the data after each round")
-    ap.add_argument("--final-epochs", type=int, default=200, help="passes of the last, annealed fit on all the data")
+    ap.add_argument("--final-epochs", type=int, default=400, help="passes of the last, annealed fit on all the data")
     ap.add_argument("--n-envs", type=int, default=64, help="episodes of each round")
     ap.add_argument("--noise", type=float, default=0.1, help="exploration noise of round 0 (share of the half-range)")
     ap.add_argument("--seed", type=int, default=0)
