@@ -21,10 +21,9 @@ learner, training reward, settings and budget.  Writes ``<out>/tune_learners.md`
 training minutes.
 
     python experiments/tune_learners.py --cells usv/nominal --learners ppo --trials 4 --trial-steps 100000
-    python experiments/tune_learners.py --rewards bounded                        # both cells, both learners
-    python experiments/tune_learners.py --cells flocking/nominal --rewards reciprocal --settings shipped
-    python experiments/tune_learners.py --cells usv/nominal --learners sac --settings tuned --seeds 1 \
-        --final-steps 3000000                                                     # a longer run
+    python experiments/tune_learners.py --rewards bounded --learners ppo          # both cells
+    python experiments/tune_learners.py --cells flocking/nominal --rewards reciprocal --settings shipped \
+        --learners sac --final-steps 1000000 3000000                              # two budgets
     python experiments/tune_learners.py --report-only --publish docs/results/tune_learners
 """
 
@@ -70,15 +69,16 @@ def _unit(job: dict[str, Any]) -> None:
                             n_timesteps=job["trial_steps"], out=str(where), study=tag, env_kwargs=env_kwargs),
                  log=lambda line: print(line, flush=True))
             kept.write_text((where / f"{task}-{scenario}" / f"{job['algo']}.yml").read_text())
-    # A run longer or shorter than the file's budget is named for its length: it never replaces a default run.
-    length = "" if job["final_steps"] is None else f"-{job['final_steps'] // 1000}k"
-    for settings, hyperparams in (("shipped", None), ("tuned", str(kept))):
-        for seed in range(job["seeds"]) if settings in job["settings"] else ():
-            name = f"{tag}-{settings}-s{seed}{length}"
-            if not (out / "runs" / f"{name}.json").exists():
-                train(TrainConfig(algo=job["algo"], env=task, scenario=scenario, seed=seed,
-                                  n_timesteps=job["final_steps"], out=str(out / "runs"), name=name,
-                                  hyperparams=hyperparams, env_kwargs=env_kwargs))
+    for steps in job["final_steps"]:
+        # A run of a budget chosen here is named for its length: it never replaces a run of the file's budget.
+        length = "" if steps is None else f"-{steps // 1000}k"
+        for settings, hyperparams in (("shipped", None), ("tuned", str(kept))):
+            for seed in range(job["seeds"]) if settings in job["settings"] else ():
+                name = f"{tag}-{settings}-s{seed}{length}"
+                if not (out / "runs" / f"{name}.json").exists():
+                    train(TrainConfig(algo=job["algo"], env=task, scenario=scenario, seed=seed, n_timesteps=steps,
+                                      out=str(out / "runs"), name=name, hyperparams=hyperparams,
+                                      env_kwargs=env_kwargs))
 
 
 #: A final run's name: ``<task>-<scenario>-<algo>-<reward>-<settings>-s<seed>[-<k>k]``.
@@ -218,8 +218,8 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=20, help="trials per study (the same for every learner)")
     ap.add_argument("--trial-steps", type=int, default=300_000, help="env steps per trial")
     ap.add_argument("--seeds", type=int, default=3, help="training seeds of each final run")
-    ap.add_argument("--final-steps", type=int, default=None, help="env steps of each final run "
-                    "(default: the hyperparameter file's)")
+    ap.add_argument("--final-steps", nargs="+", type=int, default=None, help="env steps of each final run, "
+                    "one set of runs per value (default: the hyperparameter file's)")
     ap.add_argument("--settings", nargs="+", default=["shipped", "tuned"], choices=["shipped", "tuned"],
                     help="which final runs: the shipped hyperparameters, the study's winner, or both")
     ap.add_argument("--skip", nargs="*", default=[], metavar="CELL:LEARNER:REWARD",
@@ -233,7 +233,8 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     jobs = [{"cell": c, "algo": a, "reward": w, "trials": args.trials, "trial_steps": args.trial_steps,
-             "seeds": args.seeds, "final_steps": args.final_steps, "settings": args.settings, "out": str(out)}
+             "seeds": args.seeds, "final_steps": args.final_steps or [None], "settings": args.settings,
+             "out": str(out)}
             for c in args.cells for a in args.learners for w in args.rewards if f"{c}:{a}:{w}" not in args.skip]
     # One torch and one XLA thread per process: several jobs never oversubscribe the cores.
     os.environ.setdefault("OMP_NUM_THREADS", "1")
