@@ -34,6 +34,7 @@ from torch import nn
 from vnhc_gym.baselines.tuning import evaluate_classical, make_classical
 from vnhc_gym.benchmark import settings
 from vnhc_gym.evaluation import TEST_SEED, evaluate
+from vnhc_gym.stats import iqm
 from vnhc_gym.tasks import env_id
 
 #: How many steps a collection round runs (one episode of the registered length).
@@ -132,10 +133,6 @@ def fit(cell: str, width: int, rounds: int, epochs: int, final_epochs: int, n_en
             "episodes": {k: res.metrics[k].tolist() for k in ("score", "success", "mean_abs_phi_sf")}}
 
 
-def _iqm(x: np.ndarray) -> float:
-    lo, hi = np.percentile(x, [25, 75])
-    return float(np.mean(x[(x >= lo) & (x <= hi)]))
-
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -157,12 +154,12 @@ def main() -> None:
         task, scenario = cell.split("/")
         gains = settings().get(task, {}).get(scenario, {}).get("tuned_law", {})
         law = evaluate_classical("tuned_law", gains, env_id(task), scenario, 20, TEST_SEED)
-        law_phi = _iqm(law.metrics["mean_abs_phi_sf"])
+        law_phi = iqm(law.metrics["mean_abs_phi_sf"])
         lines.append(f"| {cell} | tuned law | - | - | {law.metrics['score'].mean():.4f} | "
                      f"{law.metrics['success'].mean():.2f} | {law_phi:.3g} | 1.0 |")
         for width in args.widths:
             row = fit(cell, width, args.rounds, args.epochs, args.final_epochs, args.n_envs, args.noise, args.seed)
-            phi = _iqm(np.asarray(row["episodes"]["mean_abs_phi_sf"]))
+            phi = iqm(np.asarray(row["episodes"]["mean_abs_phi_sf"]))
             row.update(law_iqm=law_phi, iqm=phi, ratio=phi / law_phi)
             rows.append(row)
             lines.append(f"| {cell} | network fitted to the law | {width} | {row['samples']} | "

@@ -39,6 +39,8 @@ from typing import Any
 
 import numpy as np
 
+from vnhc_gym.stats import iqm  # rliable's interquartile mean
+
 CELLS = ["usv/nominal", "flocking/nominal"]
 VALIDATION_EPISODES = 10  # as many as each training run's checkpoint evaluation (TrainConfig.eval_episodes)
 LEARNERS = ["ppo", "sac"]
@@ -142,12 +144,8 @@ def _law(cell: str, episodes: int) -> dict[str, Any]:
     val = evaluate_classical("tuned_law", gains, env_id(task), scenario, VALIDATION_EPISODES, VALIDATION_SEED)
     return {"cell": cell, "algo": "tuned_law", "reward": "-", "settings": json.dumps(gains),
             "episodes": {k: res.metrics[k].tolist() for k in ("score", "success", "mean_abs_phi_sf")},
-            "validation_iqm": _iqm(val.metrics["mean_abs_phi_sf"])}
+            "validation_iqm": iqm(val.metrics["mean_abs_phi_sf"])}
 
-
-def _iqm(x: np.ndarray) -> float:
-    lo, hi = np.percentile(x, [25, 75])
-    return float(np.mean(x[(x >= lo) & (x <= hi)]))
 
 
 def _cost(row: dict[str, Any]) -> str:
@@ -162,14 +160,14 @@ def _cost(row: dict[str, Any]) -> str:
 def _table(rows: list[dict[str, Any]]) -> str:
     from vnhc_gym.stats import interval_estimates
 
-    law = {r["cell"]: _iqm(np.asarray(r["episodes"]["mean_abs_phi_sf"])) for r in rows if r["algo"] == "tuned_law"}
+    law = {r["cell"]: iqm(np.asarray(r["episodes"]["mean_abs_phi_sf"])) for r in rows if r["algo"] == "tuned_law"}
     lines = ["| cell | agent | training reward | settings | steps | seeds | test score [95 % CI] | finished "
              "| IQM mean abs phi~ | x the tuned law's | study (trials, core-h) | training min/run |",
              "|---|---|---|---|---:|---:|---|---:|---:|---:|---:|---:|"]
     for r in rows:
         score = np.asarray(r["episodes"]["score"])
         iv = interval_estimates({"x": score[:, None]}, metric="mean", reps=2000)["x"]
-        phi = _iqm(np.asarray(r["episodes"]["mean_abs_phi_sf"]))
+        phi = iqm(np.asarray(r["episodes"]["mean_abs_phi_sf"]))
         steps = f"{r['steps'] / 1e6:g} M" if r.get("steps") else "-"
         seeds = len(r["seeds"]) if "seeds" in r else "-"
         lines.append(f"| {r['cell']} | {r['algo']} | {r['reward']} | {r['settings']} | {steps} | {seeds} "
