@@ -10,6 +10,12 @@ Entries are written atomically (a temporary file, then a rename) with a checksum
 the first line, and checked when they are loaded: a truncated, emptied or otherwise damaged file is
 rebuilt, with one warning.  An unusable cache folder (read-only, or a file) falls back to a
 per-user folder in the temporary directory, with one warning that names ``VNHC_GYM_CACHE_DIR``.
+
+The package ships the generated modules of its own systems and environments (`SHIPPED_DIR`): a
+cache miss whose key is there copies that file instead of generating it, so a first run skips the
+symbolic work (minutes for the spacecraft) and only compiles.  A shipped file has the same key as a
+generated one, so it is used only while every source it was made from is unchanged;
+``python -m vnhc_gym.mechanics.ship`` rewrites the folder after an edit.
 """
 
 from __future__ import annotations
@@ -28,7 +34,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from types import ModuleType
 
-__all__ = ["CacheWarning", "cache_dir", "load_module"]
+__all__ = ["CacheWarning", "SHIPPED_DIR", "cache_dir", "load_module", "shipped_source"]
 
 #: Bumped when the layout of the cache folder changes (every entry is then rebuilt).
 LAYOUT_VERSION = "2"
@@ -36,6 +42,8 @@ _HEADER = "# vnhc_gym generated module; sha256 of the rest: "
 _LOCK = threading.RLock()
 _LOADED: dict[str, ModuleType] = {}
 _RESOLVED: dict[str, Path] = {}
+#: The generated modules shipped with the package (module docstring).
+SHIPPED_DIR = Path(__file__).with_name("shipped")
 
 
 class CacheWarning(UserWarning):
@@ -128,6 +136,15 @@ def _check_text(path: Path) -> str | None:
     return None
 
 
+def shipped_source(key: str) -> str | None:
+    """The text of the shipped module ``key`` without its checksum line (None if the package does
+    not ship it, or its copy fails its checksum)."""
+    shipped = SHIPPED_DIR / f"vnhc_gen_{key}.py"
+    if not shipped.is_file() or _check_text(shipped) is not None:
+        return None
+    return shipped.read_text(encoding="utf-8").partition("\n")[2]
+
+
 def _machine_code_dir(path: Path) -> Path:
     """Where numba keeps the machine code of the module at ``path``: beside it, or under
     ``NUMBA_CACHE_DIR`` when that is set (numba's own rule for the sub-folder)."""
@@ -212,8 +229,8 @@ def load_module(key: str, make_source: Callable[[], str], *, label: str,
     key : str
         Hex digest naming the module (see `vnhc_gym.mechanics.codegen.module_key`).
     make_source : callable
-        Returns the module's text; called only on a cache miss (a warm start skips all symbolic
-        work).
+        Returns the module's text; called only on a cache miss that the package does not ship (a
+        warm start skips all symbolic work).
     label : str
         What the module is for, in the one-line notice printed on stderr the first time its
         kernels are compiled.
@@ -255,7 +272,8 @@ def load_module(key: str, make_source: Callable[[], str], *, label: str,
             sys.modules.pop(name, None)
             _discard(path)
         _notice(label, folder)
-        _write(path, make_source())
+        source = shipped_source(key)
+        _write(path, make_source() if source is None else source)
         module = _import(path, name)
         missing = [n for n in required if not hasattr(module, n)]
         if missing:  # pragma: no cover - a code generation bug, not a cache fault
