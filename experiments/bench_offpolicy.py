@@ -56,8 +56,8 @@ def main() -> None:
     args = ap.parse_args()
     rows = []
     env = {**os.environ, "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"}
-    for lib, steps in (("stable-baselines3", 4096 if args.quick else 32_768),
-                       ("SBX", 8192 if args.quick else 131_072)):
+    for lib, steps in (("stable-baselines3", 1024 if args.quick else 32_768),
+                       ("SBX", 2048 if args.quick else 131_072)):
         proc = subprocess.run([sys.executable, "-c", _ONE, lib, "usv", str(steps)], capture_output=True, text=True,
                               env=env, check=False)
         if proc.returncode != 0:

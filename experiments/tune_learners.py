@@ -13,7 +13,8 @@ environments; validation and test use the default reward, so every row is on one
 
 Everything is resumable: the studies live in ``<out>/tuned/<reward>/studies.db`` and each finished
 training run's sidecar is kept (a rerun skips it).  ``--settings`` chooses the final runs (a study runs
-only for ``tuned``); ``--final-steps`` trains for another budget, under a name of its own.  The report
+only for ``tuned``); ``--final-steps`` trains for another budget, and ``--variant LABEL KEY:VALUE ...``
+the chosen settings with a few hyperparameters replaced, each under a name of its own.  The report
 covers every finished run of the cells in ``<out>/runs``, whichever invocation trained it: one row per
 learner, training reward, settings and budget.  Writes ``<out>/tune_learners.md``, ``.json`` and ``.png``
 (each row's validation curve beside the law's level on the same episodes), and the same files to
@@ -24,6 +25,8 @@ training minutes.
     python experiments/tune_learners.py --rewards bounded --learners ppo          # both cells
     python experiments/tune_learners.py --cells flocking/nominal --rewards reciprocal --settings shipped \
         --learners sac --final-steps 1000000 3000000                              # two budgets
+    python experiments/tune_learners.py --cells usv/nominal --learners sac --settings tuned \
+        --final-steps 1000000 --variant te5 target_entropy:-5                    # a variant
     python experiments/tune_learners.py --report-only --publish docs/results/tune_learners
 """
 
@@ -40,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from vnhc_gym.stats import iqm  # rliable's interquartile mean
+from vnhc_gym.training.cli import parse_key_values  # the KEY:VALUE items of vnhc-gym train
 
 CELLS = ["usv/nominal", "flocking/nominal"]
 VALIDATION_EPISODES = 10  # as many as each training run's checkpoint evaluation (TrainConfig.eval_episodes)
@@ -75,17 +79,19 @@ def _unit(job: dict[str, Any]) -> None:
         # A run of a budget chosen here is named for its length: it never replaces a run of the file's budget.
         length = "" if steps is None else f"-{steps // 1000}k"
         for settings, hyperparams in (("shipped", None), ("tuned", str(kept))):
+            # A variant (``--variant``) is the same settings with a few hyperparameters replaced.
+            label = settings + (f"+{job['variant'][0]}" if job["variant"] else "")
             for seed in range(job["seeds"]) if settings in job["settings"] else ():
-                name = f"{tag}-{settings}-s{seed}{length}"
+                name = f"{tag}-{label}-s{seed}{length}"
                 if not (out / "runs" / f"{name}.json").exists():
                     train(TrainConfig(algo=job["algo"], env=task, scenario=scenario, seed=seed, n_timesteps=steps,
                                       out=str(out / "runs"), name=name, hyperparams=hyperparams,
-                                      env_kwargs=env_kwargs))
+                                      overrides=job["variant"][1] if job["variant"] else {}, env_kwargs=env_kwargs))
 
 
-#: A final run's name: ``<task>-<scenario>-<algo>-<reward>-<settings>-s<seed>[-<k>k]``.
+#: A final run's name: ``<task>-<scenario>-<algo>-<reward>-<settings>[+<variant>]-s<seed>[-<k>k]``.
 RUN_NAME = re.compile(r"^(?P<task>[a-z]+)-(?P<scenario>[a-z_]+)-(?P<algo>[a-z]+)-(?P<reward>[a-z]+)"
-                      r"-(?P<settings>shipped|tuned)-s(?P<seed>\d+)(?:-\d+k)?$")
+                      r"-(?P<settings>(?:shipped|tuned)(?:\+[a-z0-9_]+)?)-s(?P<seed>\d+)(?:-\d+k)?$")
 
 
 def _rows(out: Path, cells: list[str]) -> list[dict[str, Any]]:
@@ -104,8 +110,11 @@ def _rows(out: Path, cells: list[str]) -> list[dict[str, Any]]:
             groups.items(), key=lambda kv: (cells.index(kv[0][0]), kv[0][1:4], int(kv[0][4]))):
         task, scenario = cell.split("/")
         study = out / "tuned" / reward / f"{task}-{scenario}" / f"{algo}-study.json"
-        summary = json.loads(study.read_text()) if settings == "tuned" and study.exists() else None
+        summary = json.loads(study.read_text()) if settings.startswith("tuned") and study.exists() else None
+        # A variant's replaced hyperparameters, as the run applied them.
+        replaced = {k: metas[0].get("hyperparams", {}).get(k) for k in metas[0].get("config", {}).get("overrides", {})}
         rows.append({"cell": cell, "algo": algo, "reward": reward, "settings": settings, "steps": int(steps),
+                     "replaced": replaced,
                      "seeds": [m["seed"] for m in metas],
                      "study_best_validation": summary["best_value"] if summary else None,
                      "study_trials": summary["n_trials"] if summary else None,
@@ -170,7 +179,8 @@ def _table(rows: list[dict[str, Any]]) -> str:
         phi = iqm(np.asarray(r["episodes"]["mean_abs_phi_sf"]))
         steps = f"{r['steps'] / 1e6:g} M" if r.get("steps") else "-"
         seeds = len(r["seeds"]) if "seeds" in r else "-"
-        lines.append(f"| {r['cell']} | {r['algo']} | {r['reward']} | {r['settings']} | {steps} | {seeds} "
+        settings = r["settings"] + "".join(f", {k} = {v}" for k, v in (r.get("replaced") or {}).items())
+        lines.append(f"| {r['cell']} | {r['algo']} | {r['reward']} | {settings} | {steps} | {seeds} "
                      f"| {iv.point:.4f} [{iv.low:.4f}, {iv.high:.4f}] | {np.mean(r['episodes']['success']):.2f} "
                      f"| {phi:.3g} | {phi / law[r['cell']]:.1f} | {_cost(r)} |")
     return "\n".join(lines) + "\n"
@@ -222,16 +232,26 @@ def main() -> None:
                     help="which final runs: the shipped hyperparameters, the study's winner, or both")
     ap.add_argument("--skip", nargs="*", default=[], metavar="CELL:LEARNER:REWARD",
                     help="combinations left out, e.g. usv/nominal:sac:reciprocal")
+    ap.add_argument("--variant", nargs="+", default=None, metavar="LABEL KEY:VALUE",
+                    help="final runs of the chosen settings with these hyperparameters replaced, named "
+                         "<settings>+LABEL (e.g. te5 target_entropy:-5)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="results/tune_learners")
     ap.add_argument("--publish", default=None, help="also write the table, the figure and the rows' JSON "
                     "here (without the studies and the models)")
     ap.add_argument("--report-only", action="store_true", help="train nothing: the report of the finished runs")
     args = ap.parse_args()
+    variant = None
+    if args.variant:
+        label, *items = args.variant
+        if not re.fullmatch(r"[a-z0-9_]+", label) or not items:
+            ap.error("--variant takes a label of lowercase letters, digits or _ and then KEY:VALUE items")
+        variant = (label, parse_key_values(items, "--variant"))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     jobs = [{"cell": c, "algo": a, "reward": w, "trials": args.trials, "trial_steps": args.trial_steps,
              "seeds": args.seeds, "final_steps": args.final_steps or [None], "settings": args.settings,
+             "variant": variant,
              "out": str(out)}
             for c in args.cells for a in args.learners for w in args.rewards if f"{c}:{a}:{w}" not in args.skip]
     # One torch and one XLA thread per process: several jobs never oversubscribe the cores.

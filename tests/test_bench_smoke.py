@@ -121,3 +121,24 @@ def test_imitation_bound_fits_a_network_and_tests_it_beside_the_law(tmp_path: Pa
     assert row["iqm"] == pytest.approx(phi[(phi >= lo) & (phi <= hi)].mean())
     assert row["ratio"] == pytest.approx(row["iqm"] / row["law_iqm"])
     assert "| usv/nominal | tuned law |" in (out / "imitation_bound.md").read_text()
+
+
+def test_error_phases_splits_the_score_of_the_law_and_an_agent(tmp_path: Path) -> None:
+    """The phases' means are those of the traces (the law decays: its first phase is far above its last),
+    and the shares of the phases add up to the whole."""
+    pytest.importorskip("stable_baselines3")
+    from vnhc_gym.training.agents import ZOO_DIR
+
+    out = tmp_path / "phases"
+    proc = subprocess.run([sys.executable, str(EXPERIMENTS / "error_phases.py"), str(ZOO_DIR / "usv-ppo.zip"),
+                           "--episodes", "3", "--out", str(out)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = json.loads((out / "error_phases.json").read_text())
+    assert [r["policy"] for r in rows] == ["tuned law", "usv-ppo"]
+    law = rows[0]
+    assert law["0-0.5 s"] > 100 * law["2 s-end"]
+    for r in rows:
+        shares = [v for k, v in r.items() if k.startswith("share")]
+        assert len(shares) == 3 and all(0 <= s <= 1 for s in shares)
+        assert sum(shares) == pytest.approx(1.0, abs=0.15)  # medians over episodes: close to, not exactly, 1
+    assert (out / "error_phases.md").read_text() in proc.stdout

@@ -23,8 +23,10 @@ def script() -> ModuleType:
     return module
 
 
-def _sidecar(runs: Path, name: str, seed: int, steps: int, phi: list[float]) -> None:
+def _sidecar(runs: Path, name: str, seed: int, steps: int, phi: list[float],
+             overrides: dict[str, Any] | None = None) -> None:
     meta = {"name": name, "seed": seed, "n_timesteps": steps, "train_wall": 60.0 * (seed + 1),
+            "config": {"overrides": overrides or {}}, "hyperparams": {"gamma": 0.95, **(overrides or {})},
             "curve": [{"steps": 0, "mean_abs_phi_sf": 1.0}, {"steps": steps, "mean_abs_phi_sf": min(phi)}],
             "test": {"metrics": {"score": [0.9] * len(phi), "success": [1.0] * len(phi), "mean_abs_phi_sf": phi}}}
     (runs / f"{name}.json").write_text(json.dumps(meta))
@@ -37,13 +39,19 @@ def test_rows_group_runs_by_learner_reward_settings_and_budget(script: ModuleTyp
         _sidecar(runs, f"usv-nominal-sac-bounded-tuned-s{seed}", seed, 1_000_000, [0.1, 0.2, 0.3, 0.4])
     _sidecar(runs, "usv-nominal-sac-bounded-tuned-s0-3000k", 0, 3_000_000, [0.01, 0.02, 0.03, 0.04])
     _sidecar(runs, "usv-nominal-ppo-reciprocal-shipped-s1", 1, 2_000_000, [0.5, 0.5, 0.5, 0.5])
+    for seed in range(2):  # a variant: the tuned settings with one hyperparameter replaced
+        _sidecar(runs, f"usv-nominal-sac-bounded-tuned+te5-s{seed}-1000k", seed, 1_000_000, [0.05] * 4,
+                 overrides={"target_entropy": -5})
     _sidecar(runs, "flocking-nominal-ppo-bounded-shipped-s0", 0, 2_000_000, [1.0])  # another cell
     _sidecar(runs, "sac-usv-nominal-s0", 0, 1_000, [1.0])  # a run of another experiment
     rows = script._rows(tmp_path, ["usv/nominal"])
     keys = [(r["algo"], r["reward"], r["settings"], r["steps"], r["seeds"]) for r in rows]
     assert keys == [("ppo", "reciprocal", "shipped", 2_000_000, [1]),
                     ("sac", "bounded", "tuned", 1_000_000, [0, 1, 2]),
-                    ("sac", "bounded", "tuned", 3_000_000, [0])]
+                    ("sac", "bounded", "tuned", 3_000_000, [0]),
+                    ("sac", "bounded", "tuned+te5", 1_000_000, [0, 1])]
+    assert rows[3]["replaced"] == {"target_entropy": -5} and rows[1]["replaced"] == {}
+    assert "| tuned+te5, target_entropy = -5 | 1 M | 2 |" in script._table([_law_row([0.1] * 4), rows[3]])
     assert rows[1]["train_seconds"] == [60.0, 120.0, 180.0]
     assert len(rows[1]["episodes"]["mean_abs_phi_sf"]) == 12 and len(rows[1]["curves"]) == 3
     assert rows[1]["study_trials"] is None  # no study stored: the row says so instead of inventing one

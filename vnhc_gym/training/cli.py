@@ -8,7 +8,7 @@ from dataclasses import fields
 
 from vnhc_gym.training.run import ALGOS, TrainConfig
 
-__all__ = ["add_arguments", "run"]
+__all__ = ["add_arguments", "parse_key_values", "run"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--progress-bar", action="store_true", help="show SB3's progress bar")
 
 
-def _overrides(items: list[str], option: str = "--params") -> dict[str, object]:
+def parse_key_values(items: list[str], option: str = "--params") -> dict[str, object]:
     """``KEY:VALUE`` items as a dict (values parsed as Python literals where they are one)."""
     from vnhc_gym.training.hyperparams import parse_literal
 
@@ -55,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
 
     names = {f.name for f in fields(TrainConfig)}
     cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in names and k not in ("overrides", "env_kwargs")},
-                      overrides=_overrides(args.params), env_kwargs=_overrides(args.env_kwargs, "--env-kwargs"))
+                      overrides=parse_key_values(args.params),
+                      env_kwargs=parse_key_values(args.env_kwargs, "--env-kwargs"))
     meta = train(cfg, log=print)
     summary = {"model": f"{cfg.out}/{meta['name']}.zip", "steps": meta["n_timesteps"],
                "steps_per_second": round(meta["steps_per_second"])}

@@ -289,9 +289,9 @@ def add_arguments(parser: Any) -> None:
 def run(args: Any) -> int:
     from dataclasses import fields
 
-    from vnhc_gym.training.cli import _overrides
+    from vnhc_gym.training.cli import parse_key_values
 
     cfg = TuneConfig(**{f.name: getattr(args, f.name) for f in fields(TuneConfig) if f.name != "env_kwargs"},
-                     env_kwargs=_overrides(args.env_kwargs, "--env-kwargs"))
+                     env_kwargs=parse_key_values(args.env_kwargs, "--env-kwargs"))
     tune(cfg)
     return 0
