@@ -100,3 +100,20 @@ def test_a_classical_study_scores_its_winner_on_validation_episodes(tmp_path: Pa
 def test_bad_configuration_is_refused_by_name(tmp_path: Path, field: str, value: Any, match: str) -> None:
     with pytest.raises(ValueError, match=match):
         tune(TuneConfig(out=str(tmp_path), **{field: value}), log=None)
+
+
+@pytest.mark.parametrize(("choice", "expected"), [("auto", -1.0), ("-5", -5.0)])
+def test_sac_space_sets_the_entropy_target_of_the_model(choice: str, expected: float) -> None:
+    """The sampled entropy target reaches the model: ``auto`` is minus the action dimensions (one on the USV)."""
+    optuna = pytest.importorskip("optuna")
+    pytest.importorskip("sbx")
+    import gymnasium as gym
+
+    from vnhc_gym.training.agents import algorithm_class
+    from vnhc_gym.training.tune import SPACES
+
+    trial = optuna.trial.FixedTrial({"target_entropy": choice, "learning_rate": 3e-4, "batch_size": 256,
+                                     "gamma": 0.98, "tau": 0.005, "gradient_steps": 2, "learning_starts": 1000,
+                                     "width": 64})
+    model = algorithm_class("sac")("MlpPolicy", gym.make("vnhc_gym/USVStream-v1"), **SPACES["sac"](trial))
+    assert float(model.target_entropy) == expected
