@@ -7,7 +7,8 @@ law and for each trained agent given, on the same held-out test episodes (20 by 
 whose gap is in the last phase reaches the constraint as fast as the law but does not hold it
 exactly: a steady error that a reward near 1 barely penalises.
 
-Writes ``<out>/error_phases.md`` and ``.json``.
+Writes ``<out>/error_phases.md`` and ``.json``; the rows already in ``<out>`` of agents not given
+this time (models trained on another machine) are kept, so that a published table grows.
 
     python experiments/error_phases.py results/tune_learners/runs/usv-nominal-sac-bounded-tuned-s0-1000k.zip
     python experiments/error_phases.py results/tune_learners/runs --match "*-sac-*" --out docs/results/error_phases
@@ -66,6 +67,22 @@ def phases(abs_phi: np.ndarray, dt: float) -> dict[str, float]:
     return out
 
 
+def merged(fresh: list[dict[str, Any]], kept: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The fresh rows, and those of ``kept`` (an earlier table's) for agents not evaluated this time.
+
+    Rows are ordered by cell (the tuned law first, then the agents by name).  A cell's law row is
+    recomputed whenever one of its agents is evaluated, so only the cells not evaluated keep theirs.
+    """
+    def key(r: dict[str, Any]) -> tuple[str, str, str]:
+        return r["env"], r["scenario"], r["policy"]
+
+    have = {key(r) for r in fresh}
+    cells_here = {key(r)[:2] for r in fresh}
+    rows = fresh + [r for r in kept if key(r) not in have
+                    and not (r["policy"] == "tuned law" and key(r)[:2] in cells_here)]
+    return sorted(rows, key=lambda r: (r["env"], r["scenario"], r["policy"] != "tuned law", r["policy"]))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", help="model files, or folders of runs (their best checkpoints)")
@@ -87,6 +104,9 @@ def main() -> None:
         res = evaluate(load_agent(path), env_id, scenario, args.episodes, TEST_SEED)
         rows.append({"policy": path.stem, "env": env_id, "scenario": scenario, **phases(res.abs_phi_sf, res.dt)})
         print(f"{path.stem}: whole {rows[-1]['whole']:.3g} (law {laws[(env_id, scenario)]['whole']:.3g})", flush=True)
+    out = Path(args.out)
+    if (out / "error_phases.json").exists():
+        rows = merged(rows, json.loads((out / "error_phases.json").read_text()))
     labels = [k for k in rows[0] if k not in ("policy", "env", "scenario", "whole") and not k.startswith("share")]
     lines = [f"IQM over {args.episodes} test episodes of the mean |phi~| in each phase, and the median share of "
              "the episode's whole mean from the last phase.", "",
@@ -96,7 +116,6 @@ def main() -> None:
         cells = " | ".join(f"{r[k]:.2e}" for k in labels)
         lines.append(f"| {r['env'].split('/')[-1]} {r['scenario']} | {r['policy']} | {r['whole']:.2e} | {cells} | "
                      f"{r['share ' + labels[-1]]:.0%} |")
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "error_phases.json").write_text(json.dumps(rows, indent=1))
     (out / "error_phases.md").write_text("\n".join(lines) + "\n")

@@ -12,14 +12,16 @@ environment's default (``--rewards reciprocal``: the long tail) changes only the
 environments; validation and test use the default reward, so every row is on one scale.
 
 Everything is resumable: the studies live in ``<out>/tuned/<reward>/studies.db`` and each finished
-training run's sidecar is kept (a rerun skips it).  ``--settings`` chooses the final runs (a study runs
-only for ``tuned``); ``--final-steps`` trains for another budget, and ``--variant LABEL KEY:VALUE ...``
-the chosen settings with a few hyperparameters replaced, each under a name of its own.  The report
-covers every finished run of the cells in ``<out>/runs``, whichever invocation trained it: one row per
-learner, training reward, settings and budget.  Writes ``<out>/tune_learners.md``, ``.json`` and ``.png``
+training run's sidecar is kept (a rerun skips it); ``--jobs`` processes run the studies, then every
+final run, one seed each.  ``--settings`` chooses the final runs (a study runs only for ``tuned``);
+``--final-steps`` trains for another budget, and ``--variant LABEL KEY:VALUE ...`` the chosen settings
+with a few hyperparameters replaced, each under a name of its own.  The report covers every finished
+run of the cells in ``<out>/runs``, whichever invocation trained it: one row per learner, training
+reward, settings and budget; the rows of an earlier report (``--publish``'s, else ``<out>``'s) whose
+runs are not in ``<out>/runs`` are kept.  Writes ``<out>/tune_learners.md``, ``.json`` and ``.png``
 (each row's validation curve beside the law's level on the same episodes), and the same files to
-``--publish``, with each study's cost in core-hours (its trials' wall times) and each final run's
-training minutes.
+``--publish`` (there with the studies' storage, ``studies/<reward>.db``), with each study's cost in
+core-hours (its trials' wall times) and each final run's training minutes.
 
     python experiments/tune_learners.py --cells usv/nominal --learners ppo --trials 4 --trial-steps 100000
     python experiments/tune_learners.py --rewards bounded --learners ppo          # both cells
@@ -36,6 +38,7 @@ import argparse
 import json
 import os
 import re
+import shutil
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -50,31 +53,43 @@ VALIDATION_EPISODES = 10  # as many as each training run's checkpoint evaluation
 LEARNERS = ["ppo", "sac"]
 
 
-def _unit(job: dict[str, Any]) -> None:
-    """One (cell, learner, reward): the study, then its winner's and/or the shipped settings' runs."""
+def _study(job: dict[str, Any]) -> None:
+    """One (cell, learner, reward)'s study, when its winner is asked for (the shipped settings need none)."""
     import torch
 
-    from vnhc_gym.training import TrainConfig, train
     from vnhc_gym.training.tune import TuneConfig, tune
 
     torch.set_num_threads(1)
-    out = Path(job["out"])
     task, scenario = job["cell"].split("/")
-    # Named even when it is the default: it overrides a hyperparameter file's own env_kwargs.
-    env_kwargs = {"reward": job["reward"]}
-    tag = f"{task}-{scenario}-{job['algo']}-{job['reward']}"
-    where = out / "tuned" / job["reward"]  # one folder per reward: its studies' winners never collide
+    where, tag, kept = _study_paths(job)
     where.mkdir(parents=True, exist_ok=True)
-    kept = out / "tuned" / f"{tag}.yml"
     # ``vnhc-gym tune`` adds ``trials`` to a stored study; a rerun of this script adds only the missing ones.
-    # The study runs only when its winner is asked for: the shipped settings alone need none.
-    if "tuned" in job["settings"]:
-        done = _trials_so_far(where, tag)
-        if done < job["trials"] or not kept.exists():
-            tune(TuneConfig(algo=job["algo"], env=task, scenario=scenario, trials=max(1, job["trials"] - done),
-                            n_timesteps=job["trial_steps"], out=str(where), study=tag, env_kwargs=env_kwargs),
-                 log=lambda line: print(line, flush=True))
-            kept.write_text((where / f"{task}-{scenario}" / f"{job['algo']}.yml").read_text())
+    # A study grown to its budget elsewhere (``vnhc-gym tune`` workers sharing its storage) only needs its
+    # winner kept.
+    done = _trials_so_far(where, tag)
+    winner = where / f"{task}-{scenario}" / f"{job['algo']}.yml"
+    if done < job["trials"] or not winner.exists():
+        # Named even when it is the default: it overrides a hyperparameter file's own env_kwargs.
+        tune(TuneConfig(algo=job["algo"], env=task, scenario=scenario, trials=max(1, job["trials"] - done),
+                        n_timesteps=job["trial_steps"], out=str(where), study=tag,
+                        env_kwargs={"reward": job["reward"]}),
+             log=lambda line: print(line, flush=True))
+    kept.write_text(winner.read_text())
+
+
+def _study_paths(job: dict[str, Any]) -> tuple[Path, str, Path]:
+    """A study's folder (one per reward: its studies' winners never collide), name and kept winner file."""
+    task, scenario = job["cell"].split("/")
+    tag = f"{task}-{scenario}-{job['algo']}-{job['reward']}"
+    tuned = Path(job["out"]) / "tuned"
+    return tuned / job["reward"], tag, tuned / f"{tag}.yml"
+
+
+def _final_runs(job: dict[str, Any]) -> list[dict[str, Any]]:
+    """The final training runs of one (cell, learner, reward) not finished yet, each a `_train` job."""
+    runs = Path(job["out"]) / "runs"
+    _, tag, kept = _study_paths(job)
+    todo = []
     for steps in job["final_steps"]:
         # A run of a budget chosen here is named for its length: it never replaces a run of the file's budget.
         length = "" if steps is None else f"-{steps // 1000}k"
@@ -83,10 +98,25 @@ def _unit(job: dict[str, Any]) -> None:
             label = settings + (f"+{job['variant'][0]}" if job["variant"] else "")
             for seed in range(job["seeds"]) if settings in job["settings"] else ():
                 name = f"{tag}-{label}-s{seed}{length}"
-                if not (out / "runs" / f"{name}.json").exists():
-                    train(TrainConfig(algo=job["algo"], env=task, scenario=scenario, seed=seed, n_timesteps=steps,
-                                      out=str(out / "runs"), name=name, hyperparams=hyperparams,
-                                      overrides=job["variant"][1] if job["variant"] else {}, env_kwargs=env_kwargs))
+                if not (runs / f"{name}.json").exists():
+                    todo.append({"cell": job["cell"], "algo": job["algo"], "seed": seed, "steps": steps,
+                                 "out": str(runs), "name": name, "hyperparams": hyperparams,
+                                 "overrides": job["variant"][1] if job["variant"] else {},
+                                 "env_kwargs": {"reward": job["reward"]}})
+    return todo
+
+
+def _train(run: dict[str, Any]) -> None:
+    """One final run: trained from scratch, its best checkpoint tested on the held-out episodes."""
+    import torch
+
+    from vnhc_gym.training import TrainConfig, train
+
+    torch.set_num_threads(1)
+    task, scenario = run["cell"].split("/")
+    train(TrainConfig(algo=run["algo"], env=task, scenario=scenario, seed=run["seed"], n_timesteps=run["steps"],
+                      out=run["out"], name=run["name"], hyperparams=run["hyperparams"],
+                      overrides=run["overrides"], env_kwargs=run["env_kwargs"]))
 
 
 #: A final run's name: ``<task>-<scenario>-<algo>-<reward>-<settings>[+<variant>]-s<seed>[-<k>k]``.
@@ -126,6 +156,25 @@ def _rows(out: Path, cells: list[str]) -> list[dict[str, Any]]:
                      # Each seed's validation curve: (steps, IQM mean |phi~| over the validation episodes).
                      "curves": [[(p["steps"], p["mean_abs_phi_sf"]) for p in m["curve"]] for m in metas]})
     return rows
+
+
+def _key(row: dict[str, Any]) -> tuple[Any, ...]:
+    return row["cell"], row["algo"], row["reward"], row["settings"], row.get("steps") or 0
+
+
+def _merged(fresh: list[dict[str, Any]], kept: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The fresh rows, and those of ``kept`` (an earlier report's) that no fresh row replaces.
+
+    A report is made from the runs on this machine; merging keeps the rows of runs trained elsewhere
+    (another machine, a wiped cache), so that extending a published table never drops a row.  A cell's
+    law row is recomputed whenever the cell is reported, so only the kept cells keep theirs.
+    """
+    have = {_key(r) for r in fresh}
+    cells_here = {r["cell"] for r in fresh}
+    rows = fresh + [r for r in kept if _key(r) not in have
+                    and not (r["algo"] == "tuned_law" and r["cell"] in cells_here)]
+    cells = list(dict.fromkeys(r["cell"] for r in rows))
+    return sorted(rows, key=lambda r: (cells.index(r["cell"]), r["algo"] != "tuned_law", *_key(r)[1:]))
 
 
 def _trials_so_far(where: Path, study: str) -> int:
@@ -257,20 +306,32 @@ def main() -> None:
     # One torch and one XLA thread per process: several jobs never oversubscribe the cores.
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     if not args.report_only:
+        # The studies first, then every final run (each seed its own job), ``--jobs`` at a time;
+        # the slow learner's come first, so that the cores stay busy to the end.
+        jobs.sort(key=lambda j: j["algo"] != "sac")
         with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-            # The slow learner's units start first, so that the cores stay busy to the end.
-            for future in [pool.submit(_unit, j) for j in sorted(jobs, key=lambda j: j["algo"] != "sac")]:
+            for future in [pool.submit(_study, j) for j in jobs if "tuned" in j["settings"]]:
+                future.result()
+            for future in [pool.submit(_train, run) for j in jobs for run in _final_runs(j)]:
                 future.result()
     # Every training run is tested on the same 20 episodes (seeds from TEST_SEED); so is the law.
     rows: list[dict[str, Any]] = []
     for cell in args.cells:
         rows += [_law(cell, 20)] + _rows(out, [cell])
+    published = Path(args.publish or out) / "tune_learners.json"
+    if published.exists():  # the published rows of runs that are not on this machine stay in the report
+        rows = _merged(rows, json.loads(published.read_text()))
     table = _table(rows)
     for where in [out] + ([Path(args.publish)] if args.publish else []):
         where.mkdir(parents=True, exist_ok=True)
         (where / "tune_learners.json").write_text(json.dumps(rows, indent=1) + "\n")
         (where / "tune_learners.md").write_text(table)
         _plot(rows, where / "tune_learners.png")
+        # The studies themselves (Optuna's SQLite storage, one per training reward): every trial can be
+        # inspected (optuna-dashboard), and copied back to <out>/tuned/<reward>/ a study resumes elsewhere.
+        for db in sorted((out / "tuned").glob("*/studies.db")) if where != out else ():
+            (where / "studies").mkdir(exist_ok=True)
+            shutil.copyfile(db, where / "studies" / f"{db.parent.name}.db")
     print(table)
 
 

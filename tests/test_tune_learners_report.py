@@ -75,3 +75,38 @@ def test_table_ratio_is_the_iqm_over_the_laws(script: ModuleType) -> None:
     row = next(line for line in table.splitlines() if "| sac |" in line).split("|")
     assert float(row[9]) == pytest.approx(0.025) and float(row[10]) == pytest.approx(10.0)
     assert float(row[8]) == pytest.approx(0.75) and row[12].strip() == "2.0"
+
+
+def test_final_runs_are_one_job_per_missing_seed(script: ModuleType, tmp_path: Path) -> None:
+    (tmp_path / "runs").mkdir()
+    _sidecar(tmp_path / "runs", "flocking-nominal-sac-reciprocal-shipped+te5-s1-3000k", 1, 3_000_000, [0.1])
+    job = {"cell": "flocking/nominal", "algo": "sac", "reward": "reciprocal", "seeds": 3,
+           "final_steps": [3_000_000], "settings": ["shipped"], "variant": ("te5", {"target_entropy": -5}),
+           "out": str(tmp_path)}
+    todo = script._final_runs(job)
+    # Seed 1 is finished; the others each train alone, under names the report reads back.
+    assert [run["name"] for run in todo] == ["flocking-nominal-sac-reciprocal-shipped+te5-s0-3000k",
+                                             "flocking-nominal-sac-reciprocal-shipped+te5-s2-3000k"]
+    assert all(script.RUN_NAME.match(run["name"])["settings"] == "shipped+te5" for run in todo)
+    assert [run["seed"] for run in todo] == [0, 2] and todo[0]["hyperparams"] is None
+    assert todo[0]["overrides"] == {"target_entropy": -5} and todo[0]["env_kwargs"] == {"reward": "reciprocal"}
+
+
+def test_merged_report_keeps_the_rows_of_runs_not_here(script: ModuleType) -> None:
+    def row(cell: str, algo: str, settings: str, steps: int | None, phi: float) -> dict[str, Any]:
+        return {"cell": cell, "algo": algo, "reward": "-" if steps is None else "bounded", "settings": settings,
+                "steps": steps, "episodes": {"mean_abs_phi_sf": [phi]}}
+
+    published = [row("usv/nominal", "tuned_law", "{}", None, 1.0), row("usv/nominal", "sac", "tuned", 10**6, 2.0),
+                 row("usv/nominal", "ppo", "shipped", 2 * 10**6, 3.0),
+                 row("flocking/nominal", "tuned_law", "{}", None, 4.0),
+                 row("flocking/nominal", "sac", "shipped", 10**6, 5.0)]
+    fresh = [row("usv/nominal", "tuned_law", "{}", None, 10.0), row("usv/nominal", "sac", "tuned", 10**6, 20.0),
+             row("usv/nominal", "sac", "tuned+te5", 10**6, 30.0)]
+    merged = script._merged(fresh, published)
+    got = [(r["cell"], r["algo"], r["settings"], r["episodes"]["mean_abs_phi_sf"][0]) for r in merged]
+    # A fresh row replaces the published one of the same learner, settings and budget (and the law's);
+    # the rows whose runs are gone, and a cell not reported here, stay.
+    assert got == [("usv/nominal", "tuned_law", "{}", 10.0), ("usv/nominal", "ppo", "shipped", 3.0),
+                   ("usv/nominal", "sac", "tuned", 20.0), ("usv/nominal", "sac", "tuned+te5", 30.0),
+                   ("flocking/nominal", "tuned_law", "{}", 4.0), ("flocking/nominal", "sac", "shipped", 5.0)]
