@@ -35,13 +35,20 @@ EDGES = (0.0, 0.5, 2.0)
 
 
 def _models(items: list[str], match: str) -> list[Path]:
-    """Model files named on the command line, or every best-checkpoint file of the folders named."""
+    """Model files named on the command line, or every best-checkpoint file of the folders named.
+
+    In a folder, a checkpoint without its sidecar belongs to a run still training: it is left out.
+    """
     out: list[Path] = []
     for item in items:
         path = Path(item)
         if path.is_dir():
-            out += sorted(p for p in path.glob(match if match.endswith(".zip") else f"{match}.zip")
-                          if not p.stem.endswith("-final"))
+            found = sorted(p for p in path.glob(match if match.endswith(".zip") else f"{match}.zip")
+                           if not p.stem.endswith("-final"))
+            training = [p for p in found if not p.with_suffix(".json").exists()]
+            for p in training:
+                print(f"{p.stem}: no sidecar yet (still training?), left out", flush=True)
+            out += [p for p in found if p not in training]
         elif path.suffix == ".zip" and path.is_file():
             out.append(path)
         else:

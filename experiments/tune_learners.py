@@ -141,8 +141,8 @@ def _rows(out: Path, cells: list[str]) -> list[dict[str, Any]]:
         task, scenario = cell.split("/")
         study = out / "tuned" / reward / f"{task}-{scenario}" / f"{algo}-study.json"
         summary = json.loads(study.read_text()) if settings.startswith("tuned") and study.exists() else None
-        # A variant's replaced hyperparameters, as the run applied them.
-        replaced = {k: metas[0].get("hyperparams", {}).get(k) for k in metas[0].get("config", {}).get("overrides", {})}
+        # A variant's replaced hyperparameters, as the command gave them (RL Zoo's notation, e.g. lin_1e-3).
+        replaced = dict(metas[0].get("config", {}).get("overrides", {}))
         rows.append({"cell": cell, "algo": algo, "reward": reward, "settings": settings, "steps": int(steps),
                      "replaced": replaced,
                      "seeds": [m["seed"] for m in metas],

@@ -25,3 +25,14 @@ def test_merged_keeps_agents_not_evaluated_and_recomputes_the_law() -> None:
     got = [(r["env"], r["policy"], r["whole"]) for r in script.merged(fresh, kept)]
     assert got == [(flock, "tuned law", 1.0), (flock, "sac-s0", 2.0),
                    (usv, "tuned law", 30.0), (usv, "ppo-s0", 4.0), (usv, "sac-s0", 50.0), (usv, "sac-s1", 60.0)]
+
+
+def test_a_folder_leaves_out_runs_still_training(tmp_path: Path) -> None:
+    spec = importlib.util.spec_from_file_location("error_phases", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    for name in ("done-s0", "done-s0-final", "training-s1"):
+        (tmp_path / f"{name}.zip").write_bytes(b"")
+    (tmp_path / "done-s0.json").write_text("{}")  # the sidecar is written when a run ends
+    assert [p.name for p in script._models([str(tmp_path)], "*")] == ["done-s0.zip"]
