@@ -104,6 +104,18 @@ def test_train_default_path_in_a_subprocess(tmp_path: Path) -> None:
     assert summary["test_mean_abs_phi_sf_iqm"] == side["test"]["summary"]["mean_abs_phi_sf"]
     assert summary["test_score"] == side["test"]["summary"]["score"]
     assert "validation score" in proc.stdout
+    # Both models the run writes load as policies, each with its own observation statistics, and score.
+    from vnhc_gym.evaluation import evaluate
+    from vnhc_gym.training import load_agent
+
+    for model, rms in ((f"{stem}.zip", side["obs_rms"]), (f"{stem}-final.zip", side["final_obs_rms"])):
+        agent = load_agent(out / model)
+        assert agent.meta["obs_rms"] == rms  # each model with the observation statistics it was saved with
+        result = evaluate(agent, "vnhc_gym/USVStream-v1", n_episodes=2, max_time=1.0)
+        assert 0.0 <= result.summary()["score"].point <= 1.0
+    (out / f"{stem}.json").rename(out / "elsewhere.json")
+    with pytest.raises(FileNotFoundError, match="AgentPolicy"):  # says how to load it anyway
+        load_agent(out / f"{stem}-final.zip")
 
 
 @pytest.mark.slow
@@ -138,3 +150,42 @@ def test_sweep_of_the_law_in_a_subprocess(tmp_path: Path) -> None:
     proc = _run("sweep", "--report", str(out))
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert json.loads((out / "report" / "comparison.json").read_text()) == json.loads(first)
+
+
+@pytest.mark.slow
+def test_a_task_in_a_file_of_its_own_through_every_command(tmp_path: Path) -> None:
+    """The tutorial's task module, saved outside the package, trained, tuned (2 trials), benchmarked
+    and swept through the console script with ``--gym-packages`` (from the module's folder, as a
+    user runs it)."""
+    pytest.importorskip("stable_baselines3")
+    import re
+
+    from conftest import TUTORIAL
+
+    block = next(b for b in re.findall(r"```python\n(.*?)```", TUTORIAL.read_text(), re.S)
+                 if b.startswith("# puck_task.py"))
+    (tmp_path / "puck_task.py").write_text(block)
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([*_command(), *args], capture_output=True, text=True, timeout=600, cwd=tmp_path)
+
+    env = "vnhc_gym/PuckSwirl-v1"
+    unknown = run("train", "--env", env, "-n", "10")
+    assert unknown.returncode == 2 and "unknown environment" in unknown.stderr  # the flag is what makes it known
+    proc = run("train", "--gym-packages", "puck_task", "--env", env, "-n", "1024", "--eval-points", "1",
+               "--test-episodes", "2", "-params", "n_envs:8", "n_steps:64", "batch_size:128", "--out", "runs")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    side = json.loads((tmp_path / "runs" / "puck-nominal-ppo-s0.json").read_text())
+    assert side["env_id"] == env and side["test"]["n_episodes"] == 2
+    proc = run("tune", "--gym-packages", "puck_task", "--env", "puck", "--algo", "tuned_law", "--trials", "2",
+               "--eval-episodes", "2", "--out", "tuned")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert len(json.loads((tmp_path / "tuned" / "puck-nominal" / "tuned_law.json").read_text())) > 0
+    proc = run("benchmark", "--gym-packages", "puck_task", "--tasks", "puck", "--quick", "--out", "bench")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "PuckSwirl-v1" in (tmp_path / "bench" / "benchmark.md").read_text()
+    proc = run("sweep", "--gym-packages", "puck_task", "--envs", "puck", "--algos", "law", "--executor", "local",
+               "--jobs", "2", "--test-episodes", "2", "--out", "sweep")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    (record,) = (tmp_path / "sweep" / "runs").glob("puck-nominal-law-*.json")
+    assert json.loads(record.read_text())["env_id"] == env

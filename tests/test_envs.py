@@ -431,8 +431,12 @@ def test_usv_leaving_the_domain_terminates() -> None:
 
 
 @needs_usv
-def test_usv_spinning_faster_than_the_turn_rate_limit_terminates() -> None:
+@pytest.mark.parametrize("feedback", ["open", "continuous", "sampled"])
+def test_usv_spinning_faster_than_the_turn_rate_limit_terminates(feedback: str) -> None:
+    """In every feedback mode of the step (the action alone, or the law inside the integrator on top
+    of it): each runs its own compiled kernel, and each must apply the task's state limits."""
     env = gym.make(USV, max_turn_rate=2.0, force_bound=1000.0)
+    env.unwrapped.batch.set_feedback(feedback, 5.0)
     env.reset(seed=0)
     for _ in range(50):
         _, r, term, _, info = env.step(np.ones(1, np.float32))  # I thetadd = u = 1000 N: spins up

@@ -56,3 +56,32 @@ def test_bad_arguments_are_refused_by_name_or_survived(env_id: str, data: st.Dat
         if terminated or truncated:
             assert not terminated or "termination_reason" in info
             obs, _ = env.reset()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_every_reward_shape_survives_random_steps(env_id: str) -> None:
+    """Each reward shape (random bad values never reach a valid choice) gives an environment whose
+    random steps stay finite, with the reward in the range its shape promises: ``raw`` in
+    ``[-reward_clip, 0]``, ``bounded`` and ``reciprocal`` at most 1 and at least ``-action_cost``."""
+    from vnhc_gym.envs.config import REWARDS
+
+    for name, value in [("reward", r) for r in REWARDS]:
+        env = gym.make(env_id, **{name: value})
+        cfg = env.unwrapped.config
+        low = -cfg.reward_clip if cfg.reward == "raw" else -cfg.action_cost
+        high = 0.0 if cfg.reward == "raw" else 1.0
+        rng = np.random.default_rng(0)
+        env.reset(seed=0)
+        rewards = []
+        for _ in range(40):
+            obs, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, env.action_space.shape))
+            assert np.all(np.isfinite(obs)), (name, value, obs)
+            rewards.append(reward)
+            if terminated or truncated:
+                env.reset()
+        assert all(low <= r <= high for r in rewards), (name, value, min(rewards), max(rewards))
+        if cfg.reward == "reciprocal":  # 1 / (1 + x) from the step's own |phi~|: the shape is the one asked for
+            sigma = cfg.reward_sigma if cfg.reward_sigma is not None else env.unwrapped.task.reward_sigma
+            cost = cfg.action_cost * np.mean(env.unwrapped.batch.buf.action[0] ** 2)
+            expected = 1.0 / (1.0 + info["abs_phi_sf"] / sigma) - cost
+            assert rewards[-1] == pytest.approx(expected, rel=1e-9, abs=1e-12)

@@ -27,7 +27,9 @@ from vnhc_gym.tasks import TASKS
 GAMMA = 0x9E3779B97F4A7C15
 
 
-@njit(cache=True)
+# The helpers compile in each test run (no cache=True): numba's disk cache checks only this file,
+# so a change in the kernels they call would otherwise be tested with stale machine code.
+@njit
 def _bits(state, k):
     out = np.empty(k, dtype=np.uint64)
     for i in range(k):
@@ -35,7 +37,7 @@ def _bits(state, k):
     return out
 
 
-@njit(cache=True)
+@njit
 def _uniforms(state, r, k):
     out = np.empty(k)
     for i in range(k):
@@ -43,7 +45,7 @@ def _uniforms(state, r, k):
     return out
 
 
-@njit(cache=True)
+@njit
 def _normals(state, r, k):
     out = np.empty((k, 2))
     for i in range(k):
@@ -51,7 +53,7 @@ def _normals(state, r, k):
     return out
 
 
-@njit(cache=True)
+@njit
 def _misc(state, r, k):
     out = np.empty((k, 2))
     for i in range(k):
@@ -107,7 +109,7 @@ def test_seeds_give_distinct_reproducible_uncorrelated_streams() -> None:
     assert len(np.unique(entropy_states(64))) == 64
 
 
-@njit(cache=True)
+@njit
 def _mismatch(state, r, nominal, mask, delta, k):
     out = np.empty((k, nominal.shape[0]))
     for i in range(k):

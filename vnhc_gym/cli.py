@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -17,10 +18,40 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+#: Subcommands that take an environment, and so ``--gym-packages``.
+TAKES_ENV = ("benchmark", "train", "tune", "sweep")
+
+GYM_PACKAGES_HELP = ("modules to import first, so that the tasks they register exist (RL Zoo's flag): "
+                     "a task defined in a file of your own, e.g. --gym-packages puck_task")
+
+
+def import_gym_packages(names: Sequence[str]) -> None:
+    """Import each module of ``names`` (a user's task modules, which register their tasks on import),
+    from the Python path or the current directory.
+
+    Raises
+    ------
+    ValueError
+        Naming the module that cannot be imported and why.
+    """
+    if names and "" not in sys.path and os.getcwd() not in sys.path:
+        # A console script's path does not hold the current directory (``python -m`` does): add it,
+        # so a task module beside the user's files imports as it does in their own scripts.
+        sys.path.insert(0, os.getcwd())
+    for name in names:
+        try:
+            importlib.import_module(name)
+        except ImportError as exc:
+            raise ValueError(f"--gym-packages: cannot import {name!r} ({exc}); is its folder on the Python path "
+                             f"(PYTHONPATH, or the current directory)?") from None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``vnhc-gym`` console script.
 
     Only the chosen subcommand's module is imported (they pull in matplotlib, SB3, torch...).
+    ``--gym-packages`` modules are imported before the subcommand builds its options, so that a
+    task they register is one of its choices.
     """
     args_in = list(sys.argv[1:] if argv is None else argv)
     chosen = next((a for a in args_in if not a.startswith("-")), None)
@@ -29,8 +60,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="vnhc-gym", description=__doc__)
     parser.add_argument("--version", action="version", version=f"vnhc-gym {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
+    if chosen in TAKES_ENV:
+        early = argparse.ArgumentParser(add_help=False)
+        early.add_argument("--gym-packages", nargs="+", default=[])
+        try:
+            import_gym_packages(early.parse_known_args(args_in)[0].gym_packages)
+        except ValueError as exc:
+            parser.error(f"{chosen}: {exc}")
     for name, (module_name, help_text) in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
+        if name in TAKES_ENV:
+            p.add_argument("--gym-packages", nargs="+", default=[], metavar="MODULE", help=GYM_PACKAGES_HELP)
         if name == chosen:
             module = importlib.import_module(module_name)
             module.add_arguments(p)

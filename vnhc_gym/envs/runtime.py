@@ -86,6 +86,7 @@ class Batch:
 
     def __init__(self, task: Task, n: int) -> None:
         model = task.model
+        task.check_sizes()  # before any kernel writes the buffers sized from these declarations
         self.task = task
         self.n = int(n)
         self.buf = Buffers.allocate(self.n, model.n, model.m, len(model.param_names), len(model.output_names),

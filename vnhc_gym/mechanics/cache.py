@@ -271,9 +271,11 @@ def load_module(key: str, make_source: Callable[[], str], *, label: str,
                           CacheWarning, stacklevel=3)
             sys.modules.pop(name, None)
             _discard(path)
-        _notice(label, folder)
         source = shipped_source(key)
-        _write(path, make_source() if source is None else source)
+        if source is None:
+            source = make_source()  # validates the definition: an error is raised before any notice of work
+        _notice(label, folder)
+        _write(path, source)
         module = _import(path, name)
         missing = [n for n in required if not hasattr(module, n)]
         if missing:  # pragma: no cover - a code generation bug, not a cache fault

@@ -193,6 +193,67 @@ class Task:
             raise ValueError(f"{cls.__name__}: need draw_stages >= 1 and 0 <= mismatch_stage <= draw_stages, got "
                              f"{cls.draw_stages!r} and {cls.mismatch_stage!r}")
 
+    def check_sizes(self) -> None:
+        """``ValueError`` naming the task and the size if a size the task declares disagrees with what
+        its constructor set or its hooks write.
+
+        Why: the compiled kernels index fixed-size buffers without bounds checks, so a hook that
+        writes past its row (an ``observe`` that writes 9 entries where ``obs_dim`` says 7) would
+        corrupt memory instead of raising.  Each hook runs here once, on buffers padded with a marker,
+        before any kernel does: a write past the declared size changes the padding, an entry the
+        hook never writes keeps the marker.
+        """
+        import sys
+
+        from vnhc_gym.rng import seed_states
+
+        model = self.model
+        where = f"task {self.name!r} ({type(self).__module__})"
+        n_state, m, n_params = 2 * model.n, model.m, len(model.param_names)
+        if not isinstance(self.obs_dim, (int, np.integer)) or isinstance(self.obs_dim, bool) or self.obs_dim < 1:
+            raise ValueError(f"{where}: obs_dim must be a positive integer, got {self.obs_dim!r}")
+        if np.shape(self.nominal) != (n_params,):
+            raise ValueError(f"{where}: nominal has shape {np.shape(self.nominal)}, but the system has {n_params} "
+                             f"parameters {model.param_names}")
+        if np.shape(self.impulse_mask) != (model.n,):
+            raise ValueError(f"{where}: impulse_mask has shape {np.shape(self.impulse_mask)}, but the system has "
+                             f"{model.n} velocity entries")
+        for label, indices in (("limits", [i for _, i, _ in self.limits]), ("angles", list(self.angles))):
+            bad = [i for i in indices if not (isinstance(i, (int, np.integer)) and 0 <= i < n_state)]
+            if bad:
+                raise ValueError(f"{where}: {label} index {bad} outside the state's {n_state} entries")
+        hooks = sys.modules[type(self).__module__]
+        # The hooks' Python functions (numba keeps them as ``py_func``) on buffers of exactly the
+        # declared sizes: numpy raises IndexError where the compiled code would write out of bounds.
+        draw = getattr(hooks.draw, "py_func", hooks.draw)
+        observe = getattr(hooks.observe, "py_func", hooks.observe)
+        mark = -7.25e300  # a value no hook writes: an observation entry still holding it was never written
+        state = np.zeros(n_state)
+        params = np.array(self.nominal, dtype=np.float64)
+        n_aux = len(model.output_names)
+        aux = np.zeros(max(n_aux, 1))
+        rng = seed_states([0])
+        try:
+            for stage in range(self.draw_stages):
+                if stage > 0 and n_aux:
+                    aux[:n_aux] = model.outputs(state, params)
+                draw(rng, 0, stage, state, params, aux, self.args)
+        except IndexError as exc:
+            raise ValueError(f"{where}: draw indexes past a buffer (state has {n_state} entries, params "
+                             f"{n_params}, aux {aux.size}): {exc}") from None
+        obs = np.full(self.obs_dim, mark)
+        phi_sf = np.zeros(m)
+        if n_aux:
+            aux[:n_aux] = model.outputs(state, params)
+        try:
+            observe(state, model.phi(state, params), aux, self.args, obs, phi_sf)
+        except IndexError as exc:
+            raise ValueError(f"{where}: observe writes past the observation's obs_dim = {self.obs_dim} entries "
+                             f"(or past phi_sf's {m}, one per constraint component): {exc}") from None
+        if (obs == mark).any():
+            raise ValueError(f"{where}: observe leaves observation entries {np.flatnonzero(obs == mark).tolist()} "
+                             f"unwritten, but obs_dim is {self.obs_dim}")
+
     # ------------------------------------------------------------------ what a controller reads
     def controller_model(self) -> ConstrainedSystem:
         """The model a model-based controller uses (default: the environment's own system)."""
@@ -206,6 +267,29 @@ class Task:
         the law does not depend on (positions of free-falling particles, say) may be zero.
         """
         raise NotImplementedError
+
+    def observation_of(self, states: Array, params: Array) -> Array:
+        """Noise-free observations ``(B, obs_dim)`` of controller states and parameters: the task's
+        own ``observe`` at each state, with ``phi`` and the extra outputs of
+        [`controller_model`][vnhc_gym.tasks.base.Task.controller_model] (a filter's measurement model).
+
+        It inverts [`controller_inputs`][vnhc_gym.tasks.base.Task.controller_inputs] where that reads
+        the state back from the observation; the observation's clipping is left out.
+        """
+        import sys
+
+        hooks = sys.modules[type(self).__module__]
+        observe = getattr(hooks.observe, "py_func", hooks.observe)  # the hook's own Python function
+        model = self.controller_model()
+        s = np.asarray(states, dtype=np.float64)
+        p = np.asarray(params, dtype=np.float64)
+        phi = model.phi(s, p)
+        aux = model.outputs(s, p) if model.output_names else np.zeros((s.shape[0], 1))
+        out = np.empty((s.shape[0], self.obs_dim))
+        sf = np.empty(self.act_dim)
+        for i in range(s.shape[0]):
+            observe(s[i], phi[i], aux[i], self.args, out[i], sf)
+        return out
 
     def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
         """Controller states and parameters predicted one step ahead, expressed in the frame of the

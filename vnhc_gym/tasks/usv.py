@@ -204,6 +204,13 @@ class USVTask(Task):
             p[:, names.index(name)] = col
         return st, p
 
+    def observation_of(self, states: Array, params: Array) -> Array:
+        """As [`Task.observation_of`][vnhc_gym.tasks.base.Task.observation_of], with the position entries
+        NaN: the frame centred on the boat does not hold where the boat is."""
+        out = super().observation_of(states, params)
+        out[:, 7:9] = np.nan
+        return out
+
     def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
         """The same states and affine currents in the frame centred on each boat (see
         `controller_inputs`): the current at the boat becomes the field's constant term."""

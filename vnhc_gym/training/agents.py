@@ -61,12 +61,27 @@ def list_zoo() -> list[str]:
 
 
 def sidecar_of(path: str | Path) -> dict[str, Any]:
-    """The JSON sidecar of a saved agent (``<stem>.json`` beside ``<stem>.zip``)."""
+    """The JSON sidecar of a saved agent: ``<stem>.json`` beside ``<stem>.zip``.
+
+    A run's final model ``<stem>-final.zip`` shares its run's sidecar ``<stem>.json`` (one record
+    per run), whose ``final_obs_rms`` are the observation statistics at the end of training: the
+    returned copy has them as ``obs_rms`` and ``checkpoint: "final"``.
+    """
     p = Path(path)
     side = p.with_suffix(".json")
-    if not side.exists():
-        raise FileNotFoundError(f"no sidecar {side} beside {p} (vnhc-gym train writes one)")
-    return json.loads(side.read_text())
+    if side.exists():
+        return dict(json.loads(side.read_text()))
+    run = p.with_name(p.stem.removesuffix("-final") + ".json")
+    if p.stem.endswith("-final") and run.exists():
+        meta = dict(json.loads(run.read_text()))
+        if "final_obs_rms" not in meta:
+            raise FileNotFoundError(f"the run's sidecar {run} has no final_obs_rms for {p} (the run did not end)")
+        return {**meta, "obs_rms": meta["final_obs_rms"], "checkpoint": "final"}
+    raise FileNotFoundError(
+        f"no sidecar {side} beside {p}: vnhc-gym train writes one beside every run. To load a model "
+        f"without one, wrap it yourself: AgentPolicy(PPO.load({str(p)!r}), {{'algo': 'ppo'}}) "
+        f"(vnhc_gym.training.AgentPolicy; the network then sees raw, unnormalised observations, and a "
+        f"residual agent needs {{'residual': ...}} as its run's sidecar has it)")
 
 
 class _Network:

@@ -8,9 +8,10 @@ algorithm's RL Zoo file (``agents/hyperparams/<algo>.yml``), trains, and writes 
   validation episodes: the return over the fixed horizon per step, a failed episode's remaining
   steps counting 0, `vnhc_gym.evaluation.metrics`);
 * ``<stem>-final.zip``: the model at the end of training;
-* ``<stem>.json``: the sidecar: the run's configuration and hyperparameters, the package version and
-  code fingerprint, the learning curve (env steps, wall time, validation IQMs), the observation
-  statistics, and the test evaluation.
+* ``<stem>.json``: the sidecar, one per run: the run's configuration and hyperparameters, the package
+  version and code fingerprint, the learning curve (env steps, wall time, validation IQMs), the
+  observation statistics of both models (``obs_rms`` of the best, ``final_obs_rms`` of the final),
+  and the test evaluation.  [`load_agent`][vnhc_gym.training.load_agent] loads either model with it.
 
 ``--algo`` is ``ppo`` (from scratch), ``residual_ppo`` (PPO through
 [`ResidualVectorAction`][vnhc_gym.wrappers.ResidualVectorAction] on top of the geometric law; the network's last
