@@ -1,4 +1,5 @@
-"""Tests of vnhc_gym.stats: exact agreement with rliable's estimators, and properties that hold without it."""
+"""Tests of vnhc_gym.stats: the two-level bootstrap against rliable's stratified bootstrap and against
+its exact variance, the probability of improvement against hand computations, and input validation."""
 
 from __future__ import annotations
 
@@ -8,41 +9,33 @@ from typing import Any
 
 import numpy as np
 import pytest
+from scipy.stats import norm
 
-from vnhc_gym.stats import (
-    Interval,
-    aggregate_metrics,
-    interval_estimates,
-    iqm,
-    performance_profile,
-    performance_profile_intervals,
-    probability_of_improvement,
-    probability_of_improvement_interval,
-    steps_to_parity,
-    time_to_parity,
-)
+from vnhc_gym.stats import Interval, interval_estimates, iqm, probability_of_improvement_interval
+
+N_RUNS, N_EPISODES = 5, 20
+#: Five training runs whose means differ (by 0.5, the episodes' spread within a run being 0.3).
+RUNS_DIFFER = np.random.default_rng(1).normal(0.5 * np.arange(N_RUNS)[:, None], 0.3, size=(N_RUNS, N_EPISODES))
+#: Five training runs drawn from one distribution.
+RUNS_ALIKE = np.random.default_rng(2).normal(0.0, 1.0, size=(N_RUNS, N_EPISODES))
 
 
-def _scores(seed: int, n_runs: int, n_tasks: int, shift: float = 0.0) -> np.ndarray:
-    # Tasks on different scales, so that resampling across tasks instead of within each would
-    # change the intervals; rounded to one decimal so that ties occur.
-    rng = np.random.default_rng(seed)
-    task_scale = 1.0 + np.arange(n_tasks)
-    return np.round(task_scale * rng.lognormal(shift, 0.5, size=(n_runs, n_tasks)), 1)
+def _pooled(scores: np.ndarray) -> np.ndarray:
+    """Every episode in one run: what pooling the runs' episodes as independent amounts to."""
+    return scores.reshape(1, -1)
 
 
-X = _scores(1, 10, 5)
-Y = _scores(2, 8, 5, shift=0.3)
-TAUS = np.array([0.5, 1.0, 2.0, 4.0, 8.0])
+def _width(iv: Interval) -> float:
+    return iv.high - iv.low
 
 
 # ---------------------------------------------------------------------------------------------
 # Against rliable
 
-# rliable's bootstrap is a Python loop over replicates, so its side uses as few replicates as
-# the tolerance allows and ours uses many: the comparison is then limited by rliable's own
-# Monte Carlo error.
-RLY_REPS = {"iqm": 6_000, "poi": 1_500, "profile": 3_000}
+# rliable's bootstrap is a Python loop over replicates, so its side uses as few replicates as the
+# tolerance allows and ours uses many: the comparison is then limited by rliable's own Monte Carlo
+# error.  The two draw from different generators, so they cannot agree replicate by replicate.
+RLY_REPS = 5_000
 OUR_REPS = 50_000
 
 
@@ -61,8 +54,8 @@ def rly() -> Iterator[Any]:
         np.random.set_state(state)  # noqa: NPY002
 
 
-def _mc_tolerance(ours: Callable[[float], tuple[Any, Any]], rly_reps: int, confidence: float = 0.95,
-                  lattice_step: float = 0.0) -> tuple[Any, Any]:
+def _mc_tolerance(ours: Callable[[float], tuple[float, float]], rly_reps: int,
+                  confidence: float = 0.95) -> tuple[float, float]:
     """Tolerance on (low, high) when comparing two bootstrap percentile endpoints.
 
     The p-quantile of B bootstrap replicates has Monte Carlo standard deviation
@@ -70,99 +63,210 @@ def _mc_tolerance(ours: Callable[[float], tuple[Any, Any]], rly_reps: int, confi
     bootstrap distribution.  q' is estimated from our many-replicate run as a central difference
     over p +- 0.01 (the endpoints at confidence +- 0.02); the two estimates are independent, so
     their difference has variance (1 / B_rliable + 1 / B_ours) p (1 - p) q'^2.  We allow five
-    standard deviations (a chance of about 1e-6 of a false alarm under normality) plus one step
-    of the lattice a discrete statistic lives on, where the percentile can jump between
-    neighbouring values.
+    standard deviations (a chance of about 1e-6 of a false alarm under normality).
     """
     p, h = (1.0 - confidence) / 2.0, 0.01
     low_wide, high_wide = ours(confidence + 2 * h)
     low_narrow, high_narrow = ours(confidence - 2 * h)
-    slope_low = np.abs(np.asarray(low_narrow) - np.asarray(low_wide)) / (2 * h)
-    slope_high = np.abs(np.asarray(high_wide) - np.asarray(high_narrow)) / (2 * h)
     sd_factor = np.sqrt(p * (1 - p) * (1 / rly_reps + 1 / OUR_REPS))
-    # 1e-12 keeps an endpoint exactly one lattice step away from failing on rounding.
-    slack = lattice_step + 1e-12
-    return 5 * sd_factor * slope_low + slack, 5 * sd_factor * slope_high + slack
+    return (5 * sd_factor * abs(low_narrow - low_wide) / (2 * h) + 1e-12,
+            5 * sd_factor * abs(high_wide - high_narrow) / (2 * h) + 1e-12)
 
 
-def test_point_estimates_match_rliable(rly: Any) -> None:
-    _, metrics = rly
-    for scores in (X, Y, _scores(3, 7, 1), _scores(4, 33, 12)):
-        agg = aggregate_metrics(scores)
-        assert agg["iqm"] == pytest.approx(metrics.aggregate_iqm(scores), abs=1e-12, rel=0)
-        assert iqm(scores) == pytest.approx(metrics.aggregate_iqm(scores), abs=1e-12, rel=0)
-        assert agg["mean"] == pytest.approx(metrics.aggregate_mean(scores), abs=1e-12, rel=0)
-        assert agg["median"] == pytest.approx(metrics.aggregate_median(scores), abs=1e-12, rel=0)
-
-
-def test_probability_of_improvement_matches_rliable(rly: Any) -> None:
-    _, metrics = rly
-    pairs = [(X, Y), (Y, X), (X, X), (X, np.round(X + 0.1, 1)), (_scores(5, 3, 4), _scores(6, 20, 4))]
-    for x, y in pairs:
-        assert probability_of_improvement(x, y, False) == pytest.approx(
-            metrics.probability_of_improvement(x, y), abs=1e-12, rel=0)
-        # Lower is better: an improvement is a larger negated score.
-        assert probability_of_improvement(x, y, True) == pytest.approx(
-            metrics.probability_of_improvement(-x, -y), abs=1e-12, rel=0)
-
-
-def test_iqm_interval_matches_rliable(rly: Any) -> None:
+@pytest.mark.parametrize("metric", ["mean", "iqm"])
+def test_interval_over_runs_matches_rliable_stratified_bootstrap(rly: Any, metric: str) -> None:
+    # rliable's StratifiedBootstrap with task_bootstrap=True, given the transposed (episodes, runs)
+    # array, redraws the columns (the runs) and then the rows within each drawn column (the
+    # episodes): the same two-level scheme.
     library, metrics = rly
-    point, ci = library.get_interval_estimates({"x": X}, lambda s: np.array([metrics.aggregate_iqm(s)]),
-                                               reps=RLY_REPS["iqm"], confidence_interval_size=0.95)
+    aggregate = np.mean if metric == "mean" else metrics.aggregate_iqm
+    point, ci = library.get_interval_estimates({"x": RUNS_DIFFER.T}, lambda s: np.array([aggregate(s)]),
+                                               task_bootstrap=True, reps=RLY_REPS, confidence_interval_size=0.95)
 
     def ours(confidence: float) -> tuple[float, float]:
-        res = interval_estimates({"x": X}, "iqm", reps=OUR_REPS, confidence=confidence)["x"]
+        res = interval_estimates({"x": RUNS_DIFFER}, metric, reps=OUR_REPS, confidence=confidence)["x"]
         return res.low, res.high
 
-    res = interval_estimates({"x": X}, "iqm", reps=OUR_REPS)["x"]
+    res = interval_estimates({"x": RUNS_DIFFER}, metric, reps=OUR_REPS)["x"]
     assert res.point == pytest.approx(point["x"][0], abs=1e-12, rel=0)
-    tol_low, tol_high = _mc_tolerance(ours, RLY_REPS["iqm"])
+    tol_low, tol_high = _mc_tolerance(ours, RLY_REPS)
     assert abs(res.low - ci["x"][0, 0]) <= tol_low
     assert abs(res.high - ci["x"][1, 0]) <= tol_high
 
 
-def test_probability_of_improvement_interval_matches_rliable(rly: Any) -> None:
-    library, metrics = rly
-    x, y = X[:, :2], Y[:, :2]
-    point, ci = library.get_interval_estimates(
-        {"x,y": [x, y]}, lambda a, b: np.array([metrics.probability_of_improvement(a, b)]),
-        reps=RLY_REPS["poi"], confidence_interval_size=0.95)
+def test_interval_of_one_run_matches_rliable_over_episodes(rly: Any) -> None:
+    # A classical baseline: one run, whose episodes play rliable's runs of one task.
+    library, _ = rly
+    episodes = RUNS_DIFFER[2]
+    point, ci = library.get_interval_estimates({"x": episodes[:, None]}, lambda s: np.array([np.mean(s)]),
+                                               reps=RLY_REPS, confidence_interval_size=0.95)
 
     def ours(confidence: float) -> tuple[float, float]:
-        res = probability_of_improvement_interval(x, y, False, reps=OUR_REPS, confidence=confidence)
+        res = interval_estimates({"x": episodes[None, :]}, reps=OUR_REPS, confidence=confidence)["x"]
         return res.low, res.high
 
-    res = probability_of_improvement_interval(x, y, False, reps=OUR_REPS)
-    assert res.point == pytest.approx(point["x,y"][0], abs=1e-12, rel=0)
-    # The statistic is a multiple of 0.5 / (n_x * n_y * n_tasks).
-    step = 0.5 / (x.shape[0] * y.shape[0] * x.shape[1])
-    tol_low, tol_high = _mc_tolerance(ours, RLY_REPS["poi"], lattice_step=step)
-    assert abs(res.low - ci["x,y"][0, 0]) <= tol_low
-    assert abs(res.high - ci["x,y"][1, 0]) <= tol_high
+    res = interval_estimates({"x": episodes[None, :]}, reps=OUR_REPS)["x"]
+    assert res.point == pytest.approx(point["x"][0], abs=1e-12, rel=0)
+    tol_low, tol_high = _mc_tolerance(ours, RLY_REPS)
+    assert abs(res.low - ci["x"][0, 0]) <= tol_low
+    assert abs(res.high - ci["x"][1, 0]) <= tol_high
 
 
-def test_performance_profile_matches_rliable(rly: Any) -> None:
-    library, _ = rly
-    point, ci = library.create_performance_profile({"x": X}, TAUS, reps=RLY_REPS["profile"],
-                                                   confidence_interval_size=0.95)
-    np.testing.assert_allclose(performance_profile({"x": X}, TAUS, False)["x"], point["x"], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(performance_profile({"x": X}, TAUS, True)["x"], 1 - point["x"], rtol=0, atol=1e-12)
+def test_probability_of_improvement_point_matches_rliable(rly: Any) -> None:
+    _, metrics = rly
+    y = RUNS_ALIKE[:1] + 0.7
+    # rliable's is per task over runs; one task whose "runs" are the pooled episodes.
+    expected = metrics.probability_of_improvement(RUNS_DIFFER.reshape(-1, 1), y.reshape(-1, 1))
+    assert probability_of_improvement_interval(RUNS_DIFFER, y).point == pytest.approx(expected, abs=1e-12, rel=0)
 
-    def ours(confidence: float) -> tuple[np.ndarray, np.ndarray]:
-        band = performance_profile_intervals({"x": X}, TAUS, False, reps=OUR_REPS, confidence=confidence)["x"]
-        return band.low, band.high
 
-    band = performance_profile_intervals({"x": X}, TAUS, False, reps=OUR_REPS)["x"]
-    np.testing.assert_allclose(band.point, point["x"], rtol=0, atol=1e-12)
-    # Fractions of n_runs * n_tasks values.
-    tol_low, tol_high = _mc_tolerance(ours, RLY_REPS["profile"], lattice_step=1 / X.size)
-    assert np.all(np.abs(band.low - ci["x"][0]) <= tol_low)
-    assert np.all(np.abs(band.high - ci["x"][1]) <= tol_high)
+def test_iqm_matches_rliable(rly: Any) -> None:
+    _, metrics = rly
+    for scores in (RUNS_DIFFER, RUNS_ALIKE, np.round(RUNS_ALIKE, 1)):
+        assert iqm(scores) == pytest.approx(metrics.aggregate_iqm(scores), abs=1e-12, rel=0)
 
 
 # ---------------------------------------------------------------------------------------------
-# Point estimates
+# The two-level bootstrap of the mean, exactly
+
+
+def _two_level_sd(scores: np.ndarray) -> float:
+    """Standard deviation of a two-level replicate's mean, from the data alone.
+
+    A replicate's mean is the average of n_runs independent slots, each the mean of n_episodes
+    draws from a run drawn uniformly; by the law of total variance a slot has variance
+    B + W / n_episodes, B being the (plug-in) variance of the run means and W the mean within-run
+    variance.  Pooling (one run of every episode) gives (B + W) / (n_runs * n_episodes) instead.
+    """
+    n_runs, n_episodes = scores.shape
+    between = np.var(scores.mean(axis=1))
+    within = np.mean(np.var(scores, axis=1))
+    return float(np.sqrt((between + within / n_episodes) / n_runs))
+
+
+@pytest.mark.parametrize("scores", [RUNS_DIFFER, RUNS_ALIKE], ids=["runs-differ", "runs-alike"])
+def test_interval_width_is_the_two_level_variance(scores: np.ndarray) -> None:
+    # The replicates of a mean of 100 values are close to normal, so the 95 % interval is
+    # 2 * 1.96 standard deviations wide; 4 % covers the Monte Carlo error of 50 000 replicates
+    # (under 1 %) and the skewness that remains (the widths come out 1.7 % and 0.9 % narrower).
+    # Redrawing only the episodes gives another width (by a factor 4.2 for RUNS_DIFFER, 1.2 for
+    # RUNS_ALIKE), and so does redrawing only the runs (1.7 for RUNS_ALIKE).
+    res = interval_estimates({"x": scores}, reps=OUR_REPS)["x"]
+    assert _width(res) == pytest.approx(2 * norm.ppf(0.975) * _two_level_sd(scores), rel=0.04)
+
+
+def test_runs_that_differ_widen_the_interval() -> None:
+    runs = interval_estimates({"x": RUNS_DIFFER}, reps=OUR_REPS)["x"]
+    pooled = interval_estimates({"x": _pooled(RUNS_DIFFER)}, reps=OUR_REPS)["x"]
+    assert runs.point == pooled.point == pytest.approx(np.mean(RUNS_DIFFER))
+    assert runs.low <= pooled.low and pooled.high <= runs.high
+    # Run means 0.5 apart and 20 episodes of spread 0.3 each: the spread between runs dominates.
+    assert _width(runs) > 2.5 * _width(pooled)
+
+
+def test_runs_alike_give_about_the_pooled_interval() -> None:
+    # Runs drawn from one distribution: the same centre, and a width larger only by the episodes'
+    # noise counted twice (in the run means' spread, and again when redrawing episodes), a factor
+    # sqrt((n_episodes * B + W) / (B + W)), about sqrt(2 n / (n + 1)) = 1.38 in expectation for
+    # n = 20 episodes and 1.19 for this draw; never near the 4x of runs that differ.
+    runs = interval_estimates({"x": RUNS_ALIKE}, reps=OUR_REPS)["x"]
+    pooled = interval_estimates({"x": _pooled(RUNS_ALIKE)}, reps=OUR_REPS)["x"]
+    assert abs((runs.low + runs.high) - (pooled.low + pooled.high)) / 2 <= 0.05 * _width(pooled)
+    assert 1.0 <= _width(runs) / _width(pooled) <= 1.45
+
+
+def test_interval_equals_per_replicate_recomputation() -> None:
+    # Replays the module's draws (runs, then episodes within each drawn run, from a generator seeded
+    # with seed) and recomputes every replicate from the redrawn arrays, one at a time.
+    reps, seed = 400, 11
+    rng = np.random.default_rng(seed)
+    runs = rng.integers(0, N_RUNS, size=(reps, N_RUNS, 1))
+    episodes = rng.integers(0, N_EPISODES, size=(reps, N_RUNS, N_EPISODES))
+    for metric, fn in (("mean", np.mean), ("iqm", iqm)):
+        replicates = [fn(np.stack([RUNS_DIFFER[runs[r, k, 0], episodes[r, k]] for k in range(N_RUNS)]))
+                      for r in range(reps)]
+        low, high = np.percentile(replicates, [2.5, 97.5])
+        res = interval_estimates({"x": RUNS_DIFFER}, metric, reps=reps, seed=seed)["x"]
+        assert (res.low, res.high) == pytest.approx((low, high), abs=1e-12)
+
+
+def test_runs_of_one_episode_are_one_run_of_every_episode() -> None:
+    # (n, 1) and (1, n) redraw the same n values the same way, from the same draws.
+    values = RUNS_DIFFER[1]
+    for metric in ("mean", "iqm"):
+        assert interval_estimates({"x": values[:, None]}, metric)["x"] == interval_estimates({"x": values[None, :]},
+                                                                                              metric)["x"]
+
+
+# ---------------------------------------------------------------------------------------------
+# Probability of improvement
+
+
+def test_probability_of_improvement_by_hand() -> None:
+    # Pairs (1,2) (1,3) (2,2) (2,3): one tie, counting a half, of four pairs.
+    assert probability_of_improvement_interval([[1.0, 2.0]], [[2.0, 3.0]]).point == pytest.approx(0.125)
+    assert probability_of_improvement_interval([[2.0, 3.0]], [[1.0, 2.0]]).point == pytest.approx(0.875)
+    # Every pair of episodes counts once, whichever run it comes from.
+    x, y = RUNS_DIFFER, RUNS_ALIKE[:1] + 0.7
+    pairs = [1.0 if a > b else 0.5 if a == b else 0.0 for a in x.ravel() for b in y.ravel()]
+    assert probability_of_improvement_interval(x, y).point == pytest.approx(np.mean(pairs), abs=1e-12)
+
+
+def test_probability_of_improvement_of_one_distribution_is_a_half() -> None:
+    x = RUNS_ALIKE
+    y = np.random.default_rng(3).normal(0.0, 1.0, size=(1, N_EPISODES))  # a classical baseline: one run
+    res = probability_of_improvement_interval(x, y, reps=OUR_REPS)
+    assert abs(res.point - 0.5) < 0.1 and res.low < 0.5 < res.high
+    assert probability_of_improvement_interval(x, x).point == 0.5  # every tie and its mirror
+
+
+def test_probability_of_improvement_of_a_clearly_better_agent() -> None:
+    # Run r's episodes ~ N(mu_r, 0.5), the baseline's ~ N(0, 0.5): an episode of run r beats one of
+    # the baseline's with probability Phi(mu_r / sqrt(0.5^2 + 0.5^2)), and a random episode of the
+    # agent with the mean of these over the runs, 0.971.
+    mu = np.array([1.0, 1.25, 1.5, 1.75, 2.0])
+    rng = np.random.default_rng(4)
+    x = rng.normal(mu[:, None], 0.5, size=(N_RUNS, N_EPISODES))
+    y = rng.normal(0.0, 0.5, size=(1, N_EPISODES))
+    true = float(np.mean(norm.cdf(mu / np.sqrt(0.5))))
+    assert true == pytest.approx(0.9714, abs=1e-4)
+    res = probability_of_improvement_interval(x, y, reps=OUR_REPS)
+    assert res.point > 0.9 and res.low > 0.8
+    assert res.low <= true <= res.high
+
+
+def test_probability_of_improvement_resamples_runs() -> None:
+    # Against a baseline in the middle of runs that differ, which run is drawn decides a replicate.
+    y = np.random.default_rng(5).normal(1.0, 0.3, size=(1, N_EPISODES))
+    runs = probability_of_improvement_interval(RUNS_DIFFER, y, reps=OUR_REPS)
+    pooled = probability_of_improvement_interval(_pooled(RUNS_DIFFER), y, reps=OUR_REPS)
+    assert runs.point == pooled.point
+    assert runs.low <= pooled.low and pooled.high <= runs.high
+    assert _width(runs) > 2 * _width(pooled)
+
+
+def test_probability_of_improvement_equals_per_replicate_recomputation() -> None:
+    # Replays the module's draws (x's runs, x's episodes, then y's) to recompute every replicate.
+    reps, seed = 300, 7
+    x, y = RUNS_DIFFER, np.round(RUNS_ALIKE[:2] + 1.0, 1)  # y: two runs, and ties
+    rng = np.random.default_rng(seed)
+
+    def draw(scores: np.ndarray) -> list[np.ndarray]:
+        n_runs, n_episodes = scores.shape
+        runs = rng.integers(0, n_runs, size=(reps, n_runs, 1))
+        episodes = rng.integers(0, n_episodes, size=(reps, n_runs, n_episodes))
+        return [np.concatenate([scores[runs[r, k, 0], episodes[r, k]] for k in range(n_runs)]) for r in range(reps)]
+
+    xs, ys = draw(x), draw(y)
+    replicates = [np.mean((a[:, None] > b[None, :]) + 0.5 * (a[:, None] == b[None, :])) for a, b in zip(xs, ys,
+                                                                                                          strict=True)]
+    low, high = np.percentile(replicates, [2.5, 97.5])
+    res = probability_of_improvement_interval(x, y, reps=reps, seed=seed)
+    assert (res.low, res.high) == pytest.approx((low, high), abs=1e-12)
+
+
+# ---------------------------------------------------------------------------------------------
+# Point estimates and the interval's properties
 
 
 def test_iqm_is_the_mean_of_the_middle_half() -> None:
@@ -173,129 +277,25 @@ def test_iqm_is_the_mean_of_the_middle_half() -> None:
     np.testing.assert_allclose(iqm(np.arange(40.0).reshape(4, 10).T, axis=0), [4.5, 14.5, 24.5, 34.5])
 
 
-def test_aggregate_metrics_by_hand() -> None:
-    scores = np.array([[1.0, 10.0, 100.0], [3.0, 20.0, 300.0]])
-    agg = aggregate_metrics(scores)
-    assert agg["mean"] == pytest.approx((2 + 15 + 200) / 3)
-    assert agg["median"] == pytest.approx(15.0)
-    assert agg["iqm"] == pytest.approx(np.mean([3.0, 10.0, 20.0, 100.0]))
-
-
-def test_probability_of_improvement_properties() -> None:
-    low, high = np.arange(6.0).reshape(3, 2), 10 + np.arange(8.0).reshape(4, 2)
-    assert probability_of_improvement(high, low, False) == 1.0
-    assert probability_of_improvement(low, high, False) == 0.0
-    assert probability_of_improvement(low, high, True) == 1.0
-    assert probability_of_improvement(X, X, False) == 0.5
-    assert probability_of_improvement(X, X, True) == 0.5
-    # Without ties P(X > Y) + P(Y > X) = 1.
-    rng = np.random.default_rng(7)
-    x, y = rng.normal(size=(9, 4)), rng.normal(0.2, size=(6, 4))
-    assert probability_of_improvement(x, y, False) + probability_of_improvement(y, x, False) == pytest.approx(1.0)
-    # One task, ties count a half: pairs (1,2) (1,3) (2,2) (2,3) -> 0.5 / 4.
-    assert probability_of_improvement([[1.0], [2.0]], [[2.0], [3.0]], False) == pytest.approx(0.125)
-    assert probability_of_improvement([[1.0], [2.0]], [[2.0], [3.0]], True) == pytest.approx(0.875)
-
-
-def test_performance_profile_direction() -> None:
-    higher = performance_profile({"x": X, "y": Y}, TAUS, False)
-    lower = performance_profile({"x": X, "y": Y}, TAUS, True)
-    for alg in ("x", "y"):
-        assert higher[alg].shape == TAUS.shape
-        np.testing.assert_allclose(higher[alg] + lower[alg], 1.0)
-        assert np.all(np.diff(higher[alg]) <= 0) and np.all(np.diff(lower[alg]) >= 0)
-    assert performance_profile({"x": [[1.0, 2.0], [3.0, 4.0]]}, 2.0, False)["x"].tolist() == [0.5]
-    assert performance_profile({"x": [[1.0, 2.0], [3.0, 4.0]]}, 2.0, True)["x"].tolist() == [0.5]
-
-
-# ---------------------------------------------------------------------------------------------
-# Bootstrap
-
-
-@pytest.mark.parametrize("metric", ["iqm", "mean", "median"])
-def test_vectorised_metric_equals_per_replicate_recomputation(metric: str) -> None:
-    # Same seed, same draws: the vectorised replicates must equal the metric recomputed on each resample.
-    scores = {"x": X, "y": Y}
-    named = interval_estimates(scores, metric, reps=300, seed=3)
-    looped = interval_estimates(scores, lambda s: aggregate_metrics(s)[metric], reps=300, seed=3)
-    for alg in scores:
-        assert named[alg].point == looped[alg].point
-        assert named[alg].low == pytest.approx(looped[alg].low, abs=1e-12)
-        assert named[alg].high == pytest.approx(looped[alg].high, abs=1e-12)
-
-
-def test_profile_band_equals_per_replicate_recomputation() -> None:
-    band = performance_profile_intervals({"x": X}, TAUS, True, reps=400, seed=5)["x"]
-    for k, tau in enumerate(TAUS):
-
-        def fraction_at_or_below(scores: np.ndarray, tau: float = tau) -> float:
-            return float(np.mean(scores <= tau))
-
-        ref = interval_estimates({"x": X}, fraction_at_or_below, reps=400, seed=5)["x"]
-        assert (band.point[k], band.low[k], band.high[k]) == pytest.approx((ref.point, ref.low, ref.high), abs=1e-12)
-
-
-def test_probability_of_improvement_interval_equals_per_replicate_recomputation() -> None:
-    # Replays the module's draw order (x's runs, then y's, from one generator seeded with seed)
-    # to recompute every replicate from the resampled arrays.
-    reps, seed = 300, 11
-    rng = np.random.default_rng(seed)
-    n_tasks = X.shape[1]
-    ix = rng.integers(0, X.shape[0], size=(reps, X.shape[0], n_tasks), dtype=np.intp)
-    iy = rng.integers(0, Y.shape[0], size=(reps, Y.shape[0], n_tasks), dtype=np.intp)
-    task = np.arange(n_tasks)
-    replicates = [probability_of_improvement(X[ix[r], task], Y[iy[r], task], True) for r in range(reps)]
-    low, high = np.percentile(replicates, [2.5, 97.5])
-    res = probability_of_improvement_interval(X, Y, True, reps=reps, seed=seed)
-    assert (res.low, res.high) == pytest.approx((low, high), abs=1e-12)
-
-
-def test_interval_contains_point_and_shrinks_with_runs() -> None:
-    rng = np.random.default_rng(0)
-    widths = []
-    for n_runs in (10, 40, 160):
-        res = interval_estimates({"a": rng.normal(size=(n_runs, 6))}, "iqm", reps=2000)["a"]
-        assert res.low <= res.point <= res.high
-        widths.append(res.high - res.low)
-    # Width scales as 1 / sqrt(n_runs): about halves each time.
-    assert widths[0] > 1.5 * widths[1] > 2.25 * widths[2]
-    poi = probability_of_improvement_interval(X, Y, True)
-    assert poi.low <= poi.point <= poi.high
-
-
 def test_confidence_widens_interval() -> None:
-    narrow = interval_estimates({"x": X}, confidence=0.5)["x"]
-    wide = interval_estimates({"x": X}, confidence=0.99)["x"]
+    narrow = interval_estimates({"x": RUNS_DIFFER}, confidence=0.5)["x"]
+    wide = interval_estimates({"x": RUNS_DIFFER}, confidence=0.99)["x"]
     assert wide.low < narrow.low < narrow.high < wide.high
 
 
 def test_seed_reproducibility_and_independence_from_other_algorithms() -> None:
-    alone = interval_estimates({"x": X}, seed=4)["x"]
-    with_other = interval_estimates({"y": Y, "x": X}, seed=4)["x"]
-    assert alone == with_other == interval_estimates({"x": X}, seed=4)["x"]
-    assert alone != interval_estimates({"x": X}, seed=5)["x"]
-    assert probability_of_improvement_interval(X, Y, False, seed=1) == probability_of_improvement_interval(
-        X, Y, False, seed=1)
-
-
-def test_lower_is_better_flips_probability_of_improvement_interval() -> None:
-    up = probability_of_improvement_interval(X, Y, False, seed=2)
-    down = probability_of_improvement_interval(X, Y, True, seed=2)
-    # Same draws, and each replicate of the lower-is-better statistic is 1 minus the other.
-    assert down.point == pytest.approx(1 - up.point, abs=1e-12)
-    assert down.low == pytest.approx(1 - up.high, abs=1e-12)
-    assert down.high == pytest.approx(1 - up.low, abs=1e-12)
+    alone = interval_estimates({"x": RUNS_DIFFER}, seed=4)["x"]
+    with_other = interval_estimates({"y": RUNS_ALIKE, "x": RUNS_DIFFER}, seed=4)["x"]
+    assert alone == with_other == interval_estimates({"x": RUNS_DIFFER}, seed=4)["x"]
+    assert alone != interval_estimates({"x": RUNS_DIFFER}, seed=5)["x"]
+    y = RUNS_ALIKE[:1]
+    assert probability_of_improvement_interval(RUNS_DIFFER, y, seed=1) == probability_of_improvement_interval(
+        RUNS_DIFFER, y, seed=1)
 
 
 def test_constant_scores_give_degenerate_interval() -> None:
-    res = interval_estimates({"c": np.full((5, 3), 2.0)}, "iqm")["c"]
-    assert res == Interval(2.0, 2.0, 2.0)
-
-
-def test_replicates_span_several_blocks() -> None:
-    # More replicates than fit in one block must still give one value per replicate.
-    many = interval_estimates({"x": np.zeros((1, 1))}, "mean", reps=3_000_000)["x"]
-    assert many == Interval(0.0, 0.0, 0.0)
+    for metric in ("mean", "iqm"):
+        assert interval_estimates({"c": np.full((5, 3), 2.0)}, metric)["c"] == Interval(2.0, 2.0, 2.0)
 
 
 def test_interval_format_and_frozen() -> None:
@@ -308,63 +308,32 @@ def test_interval_format_and_frozen() -> None:
 
 
 # ---------------------------------------------------------------------------------------------
-# Learning curves
-
-
-def test_steps_to_parity() -> None:
-    steps = [0, 1000, 2000, 3000, 4000]
-    curve = [5.0, 3.0, 1.0, 0.5, 2.0]
-    assert steps_to_parity(steps, curve, 1.0) == 2000
-    assert isinstance(steps_to_parity(steps, curve, 1.0), int)
-    assert steps_to_parity(steps, curve, 0.1) is None
-    assert steps_to_parity(steps, curve, 5.0) == 0
-    assert steps_to_parity(steps, curve, 4.0, lower_is_better=False) == 0
-    assert steps_to_parity(steps, [0.0, 1.0, 2.0, 3.0, 4.0], 2.5, lower_is_better=False) == 3000
-    assert steps_to_parity(steps, [0.0, 1.0, 2.0, 3.0, 4.0], 9.0, lower_is_better=False) is None
-    assert time_to_parity([0.0, 0.5, 1.5], [3.0, 2.0, 1.0], 2.0) == 0.5
-
-
-# ---------------------------------------------------------------------------------------------
 # Input validation
 
+X, Y = RUNS_DIFFER, RUNS_ALIKE[:1]
 BAD_CALLS: list[tuple[str, Callable[[], Any], str]] = [
     ("iqm empty", lambda: iqm([]), "scores must not be empty"),
     ("iqm nan", lambda: iqm([1.0, np.nan]), "scores must contain only finite"),
     ("iqm text", lambda: iqm(["a", "b"]), "scores must be a numeric array"),
     ("iqm axis", lambda: iqm(X, axis=2), "axis must be"),
-    ("aggregate 1-D", lambda: aggregate_metrics([1.0, 2.0]), r"scores must be a 2-D array"),
-    ("aggregate 3-D", lambda: aggregate_metrics(np.ones((2, 2, 2))), r"scores must be a 2-D array"),
-    ("aggregate inf", lambda: aggregate_metrics([[1.0, np.inf]]), "scores must contain only finite"),
-    ("aggregate ragged", lambda: aggregate_metrics([[1.0, 2.0], [3.0]]), "scores must be a numeric array"),
-    ("poi x shape", lambda: probability_of_improvement([1.0, 2.0], Y, False), "x must be a 2-D array"),
-    ("poi tasks", lambda: probability_of_improvement(X, Y[:, :3], False), "y must have 5 tasks"),
-    ("poi nan", lambda: probability_of_improvement(X, np.where(Y > 1, np.nan, Y), False), "y must contain only"),
-    ("poi empty", lambda: probability_of_improvement(np.ones((0, 5)), Y, False), "x must not be empty"),
-    ("poi direction", lambda: probability_of_improvement(X, Y, "lower"), "lower_is_better must be True"),  # type: ignore[arg-type]
-    ("poi interval tasks", lambda: probability_of_improvement_interval(X, Y[:, :1], True), "y must have 5 tasks"),
-    ("poi interval reps", lambda: probability_of_improvement_interval(X, Y, True, reps=0), "reps must be"),
     ("dict empty", lambda: interval_estimates({}), "score_dict must be a non-empty mapping"),
     ("dict not mapping", lambda: interval_estimates([X]), "score_dict must be a non-empty mapping"),  # type: ignore[arg-type]
     ("dict nan", lambda: interval_estimates({"x": X, "y": np.full((2, 5), np.nan)}), r"score_dict\['y'\]"),
-    ("dict tasks", lambda: interval_estimates({"x": X, "y": Y[:, :4]}), r"score_dict\['y'\] must have 5 tasks"),
     ("dict 1-D", lambda: interval_estimates({"x": X[0]}), r"score_dict\['x'\] must be a 2-D array"),
-    ("metric", lambda: interval_estimates({"x": X}, "optimality_gap"), "metric must be one of"),
+    ("dict 3-D", lambda: interval_estimates({"x": X[None]}), r"score_dict\['x'\] must be a 2-D array"),
+    ("dict ragged", lambda: interval_estimates({"x": [[1.0, 2.0], [3.0]]}), "must be a numeric array"),
+    ("dict empty runs", lambda: interval_estimates({"x": np.ones((0, 5))}), "must not be empty"),
+    ("metric", lambda: interval_estimates({"x": X}, "median"), "metric must be one of"),
     ("reps", lambda: interval_estimates({"x": X}, reps=1.5), "reps must be a positive integer"),  # type: ignore[arg-type]
+    ("reps zero", lambda: interval_estimates({"x": X}, reps=0), "reps must be a positive integer"),
     ("confidence", lambda: interval_estimates({"x": X}, confidence=1.0), "confidence must be"),
-    ("profile taus", lambda: performance_profile({"x": X}, [np.nan], True), "taus must contain only finite"),
-    ("profile taus 2-D", lambda: performance_profile({"x": X}, np.ones((2, 2)), True), "taus must be a scalar"),
-    ("profile taus empty", lambda: performance_profile({"x": X}, [], True), "taus must not be empty"),
-    ("profile direction", lambda: performance_profile({"x": X}, TAUS, None), "lower_is_better"),  # type: ignore[arg-type]
-    ("profile tasks", lambda: performance_profile_intervals({"x": X, "y": Y[:, :2]}, TAUS, True), r"score_dict\['y'\]"),
-    ("profile confidence", lambda: performance_profile_intervals({"x": X}, TAUS, True, confidence=0), "confidence"),
-    ("parity lengths", lambda: steps_to_parity([0, 1, 2], [1.0, 2.0], 1.0), "steps and values must be 1-D"),
-    ("parity order", lambda: steps_to_parity([0, 2, 1], [1.0, 2.0, 3.0], 1.0), "steps must be non-decreasing"),
-    ("parity nan", lambda: steps_to_parity([0, 1], [1.0, np.nan], 1.0), "values must contain only finite"),
-    ("parity empty", lambda: steps_to_parity([], [], 1.0), "steps must not be empty"),
-    ("parity target", lambda: steps_to_parity([0, 1], [1.0, 2.0], np.nan), "target must be a finite number"),
-    ("parity times", lambda: time_to_parity([1.0, 0.0], [1.0, 2.0], 1.0), "times must be non-decreasing"),
-    ("parity unsigned", lambda: steps_to_parity(np.array([0, 2, 1], np.uint64), [3.0, 2.0, 1.0], 1.0), "steps must"),
-    ("parity text", lambda: time_to_parity(["a"], [1.0], 1.0), "times must be a 1-D array of real numbers"),
+    ("seed", lambda: interval_estimates({"x": X}, seed=-1), "seed must be"),
+    ("poi x shape", lambda: probability_of_improvement_interval([1.0, 2.0], Y), "x must be a 2-D array"),
+    ("poi nan", lambda: probability_of_improvement_interval(X, np.where(Y > 0, np.nan, Y)), "y must contain only"),
+    ("poi empty", lambda: probability_of_improvement_interval(np.ones((0, 5)), Y), "x must not be empty"),
+    ("poi reps", lambda: probability_of_improvement_interval(X, Y, reps=0), "reps must be"),
+    ("poi confidence", lambda: probability_of_improvement_interval(X, Y, confidence=0), "confidence must be"),
+    ("poi seed", lambda: probability_of_improvement_interval(X, Y, seed=1.5), "seed must be"),  # type: ignore[arg-type]
 ]
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,7 @@ pytest.importorskip("stable_baselines3")
 
 import vnhc_gym.evaluation  # noqa: E402
 import vnhc_gym.evaluation.protocol  # noqa: E402
-from vnhc_gym import sweep  # noqa: E402
+from vnhc_gym import stats, sweep  # noqa: E402
 from vnhc_gym.baselines import GeometricController  # noqa: E402
 from vnhc_gym.baselines.tuning import CLASSICAL  # noqa: E402
 from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate  # noqa: E402
@@ -67,11 +68,11 @@ class _Calls:
     def __init__(self, real: Any, refuse: bool = False) -> None:
         self.real, self.refuse, self.stems = real, refuse, []
 
-    def __call__(self, spec: RunSpec, out: Any, threads: int = 1) -> Any:
+    def __call__(self, spec: RunSpec, out: Any, threads: int = 1, packages: Any = ()) -> Any:
         self.stems.append(spec.stem)
         if self.refuse:
             raise AssertionError(f"{spec.stem} should not run again")
-        return self.real(spec, out, threads)
+        return self.real(spec, out, threads, packages)
 
 
 # --------------------------------------------------------------------------- specs
@@ -151,9 +152,17 @@ def test_report_files_and_numbers(swept: Any, tmp_path: Path) -> None:
         assert row["score"] == pytest.approx(float(np.mean(pooled)), rel=1e-12)
         assert row["iqm_abs_phi_sf"] == pytest.approx(sps.trim_mean(phi, 0.25), rel=1e-12)
         assert row["low"] <= row["score"] <= row["high"]
+        # The interval redraws the runs (in the order of their files), then the episodes within each.
+        per_run = np.stack([_test_metrics(out, s)["score"] for s in sorted(cell, key=lambda s: s.stem)])
+        assert row["episodes_per_run"] == 3
+        iv = stats.interval_estimates({"x": per_run}, reps=300)["x"]
+        assert (row["low"], row["high"]) == (iv.low, iv.high)
         assert row["best_classical"] == "law"
         if row["algo"] == "ppo":
             assert 0.0 <= row["poi_low"] <= row["poi"] <= row["poi_high"] <= 1.0
+            law = next(s for s in specs if s.env == row["env"] and s.algo == "law")
+            poi = stats.probability_of_improvement_interval(per_run, [_test_metrics(out, law)["score"]], reps=300)
+            assert (row["poi"], row["poi_low"], row["poi_high"]) == (poi.point, poi.low, poi.high)
             assert row["parity_runs"].endswith("/2")
     with open(dest / "comparison.csv") as fh:
         table = list(csv.DictReader(fh))
@@ -163,6 +172,8 @@ def test_report_files_and_numbers(swept: Any, tmp_path: Path) -> None:
     assert all(f"### {env}" in md for env in ENVS)
     headline = (dest / "headline.md").read_text()
     assert all(f"| {env} | nominal |" in headline for env in ENVS)
+    # Every verdict names its data: PPO's two runs of three episodes, the law's one.
+    assert all("2 runs x 3 episodes" in v["verdict"] and "1 run x 3 episodes" in v["verdict"] for v in rep["verdicts"])
 
 
 @pytest.mark.slow
@@ -217,6 +228,72 @@ def test_deleting_a_sidecar_reruns_only_that_run(swept: Any, tmp_path: Path, mon
     assert calls.stems == [victim.stem] and result["done"] == [victim.stem]
     assert status(victim, out) == "done"
     assert _test_metrics(out, victim) == old  # same seed, same numbers
+
+
+# --------------------------------------------------------------------------- the report's statistics
+def _record(algo: str, scenario: str, seed: int, scores: np.ndarray, validation: float) -> dict[str, Any]:
+    """A finished run's sidecar with the fields the report reads, for given test scores."""
+    spec = RunSpec(algo, "usv", scenario, seed, 1000, test_episodes=len(scores))
+    n = len(scores)
+    record: dict[str, Any] = {
+        "name": spec.stem, "spec": asdict(spec), "code": "synthetic", "settings": {},
+        "test": {"metrics": {"score": scores.tolist(), "success": [1.0] * n, "mean_abs_phi_sf": (1 - scores).tolist(),
+                             "horizon_abs_phi_sf": (1 - scores).tolist()}}}
+    if spec.learned:
+        record["curve"] = [{"steps": 0, "wall": 0.0, "score": 0.0, "score_low": 0.0},
+                           {"steps": 1000, "wall": 1.0, "score": validation, "score_low": validation}]
+    else:
+        record["validation_score"] = validation
+    return record
+
+
+def test_report_resamples_training_runs(tmp_path: Path) -> None:
+    # Five PPO runs whose means differ, against a law whose episodes sit among them: pooled as if every
+    # episode were independent, PPO would beat the law; with its runs redrawn the interval crosses 0.5.
+    rng = np.random.default_rng(0)
+    law = rng.normal(0.90, 0.01, size=20)
+    ppo = rng.normal(np.array([0.895, 0.898, 0.905, 0.912, 0.925])[:, None], 0.004, size=(5, 20))
+    clear = rng.normal(0.96, 0.004, size=(3, 20))  # another cell: three runs all above the law
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    records = [_record("law", "nominal", 0, law, 0.90), _record("law", "noisy", 0, law, 0.90),
+               *(_record("ppo", "nominal", s, ppo[s], 0.91) for s in range(5)),
+               *(_record("ppo", "noisy", s, clear[s], 0.96) for s in range(3))]
+    for r in records:
+        (runs / f"{r['name']}.json").write_text(json.dumps(r))
+    reps = 5000
+    rep = report(tmp_path, reps=reps, log=lambda s: None)
+    row = next(r for r in rep["rows"] if r["scenario"] == "nominal" and r["algo"] == "ppo")
+    assert (row["runs"], row["episodes_per_run"], row["episodes"]) == (5, 20, 100)
+    iv = stats.interval_estimates({"x": ppo}, reps=reps)["x"]
+    poi = stats.probability_of_improvement_interval(ppo, law[None, :], reps=reps)
+    assert (row["score"], row["low"], row["high"]) == (iv.point, iv.low, iv.high)
+    assert (row["poi"], row["poi_low"], row["poi_high"]) == (poi.point, poi.low, poi.high)
+    pooled = stats.probability_of_improvement_interval(ppo.reshape(1, -1), law[None, :], reps=reps)
+    assert pooled.low > 0.5 > poi.low  # what pooling the episodes would have concluded, and what the runs say
+    law_row = next(r for r in rep["rows"] if r["scenario"] == "nominal" and r["algo"] == "law")
+    assert (law_row["runs"], law_row["episodes_per_run"]) == (1, 20)
+    assert law_row["low"] == stats.interval_estimates({"x": law[None, :]}, reps=reps)["x"].low
+    verdicts = {v["scenario"]: v for v in rep["verdicts"]}
+    assert verdicts["nominal"]["winner"] == "none"
+    assert verdicts["nominal"]["verdict"] == "no clear winner (ppo, 5 runs x 20 episodes, vs law, 1 run x 20 episodes)"
+    assert verdicts["noisy"]["verdict"] == "ppo beats law (3 runs x 20 episodes vs 1 run x 20 episodes)"
+    assert verdicts["nominal"]["learned_runs_x_episodes"] == [5, 20]
+    assert verdicts["noisy"]["classical_runs_x_episodes"] == [1, 20]
+    headline = (tmp_path / "report" / "headline.md").read_text()
+    assert "no clear winner (ppo, 5 runs x 20 episodes, vs law, 1 run x 20 episodes)" in headline
+    md = (tmp_path / "report" / "comparison.md").read_text()
+    assert "| nominal | ppo | 5 x 20 |" in md and "| nominal | law (best) | 1 x 20 |" in md
+
+
+def test_report_refuses_runs_of_different_lengths(tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    for r in (_record("law", "nominal", 0, np.full(4, 0.9), 0.9), _record("ppo", "nominal", 0, np.full(4, 0.9), 0.9),
+              _record("ppo", "nominal", 1, np.full(3, 0.9), 0.9)):
+        (runs / f"{r['name']}.json").write_text(json.dumps(r))
+    with pytest.raises(ValueError, match="as many test episodes"):
+        report(tmp_path, reps=10, log=lambda s: None)
 
 
 # --------------------------------------------------------------------------- classical runs

@@ -121,8 +121,15 @@ def _atomic_json(path: Path, data: Any) -> None:
     os.replace(tmp, path)
 
 
-def run_one(spec: RunSpec, out: str | Path, threads: int = 1) -> dict[str, Any]:
-    """Do one run and write its outputs (the sidecar last); returns the sidecar."""
+def run_one(spec: RunSpec, out: str | Path, threads: int = 1, packages: Sequence[str] = ()) -> dict[str, Any]:
+    """Do one run and write its outputs (the sidecar last); returns the sidecar.
+
+    ``packages`` are imported first (``--gym-packages``: the modules that register a user's tasks,
+    needed again in a worker process).
+    """
+    from vnhc_gym.cli import import_gym_packages
+
+    import_gym_packages(packages)
     runs = Path(out) / "runs"
     runs.mkdir(parents=True, exist_ok=True)
     (runs / f"{spec.stem}.error").unlink(missing_ok=True)
@@ -189,10 +196,10 @@ def _best_classical(spec: RunSpec, out: str | Path, env_id: str) -> tuple[str, d
     return name, settings
 
 
-def _guarded(spec: RunSpec, out: str, threads: int) -> tuple[str, str | None]:
+def _guarded(spec: RunSpec, out: str, threads: int, packages: Sequence[str] = ()) -> tuple[str, str | None]:
     """`run_one` that records a failure (with its traceback) instead of raising."""
     try:
-        run_one(spec, out, threads)
+        run_one(spec, out, threads, packages)
         return spec.stem, None
     except Exception:  # noqa: BLE001 - a failed run is recorded, the sweep goes on
         tb = traceback.format_exc()
@@ -211,12 +218,13 @@ def _progress(done: int, failed: int, running: int, total: int, t0: float, log: 
 
 def run_sweep(specs: Iterable[RunSpec], out: str | Path, *, executor: str = "local", jobs: int = 1, threads: int = 1,
               address: str | None = None, retries: int = 2, rerun_failed: bool = True,
-              log: Callable[[str], None] = print) -> dict[str, list[str]]:
+              log: Callable[[str], None] = print, packages: Sequence[str] = ()) -> dict[str, list[str]]:
     """Run every unfinished spec; returns ``{"done": [...], "failed": [...], "skipped": [...]}``.
 
     ``executor="local"`` runs in this process (``jobs=1``) or in ``jobs`` worker processes;
     ``"ray"`` submits one task per run to Ray (``address``: an existing cluster, else a local
-    instance; ``RAY_ADDRESS`` works too).  Ctrl-C stops the sweep; finished runs stay.
+    instance; ``RAY_ADDRESS`` works too).  Ctrl-C stops the sweep; finished runs stay.  ``packages``:
+    modules every run imports first (``--gym-packages``).
     """
     out = str(out)
     specs = list(specs)
@@ -228,19 +236,19 @@ def run_sweep(specs: Iterable[RunSpec], out: str | Path, *, executor: str = "loc
     if not todo:
         return result
     if executor == "ray":
-        return _run_ray(todo, out, threads, address, retries, result, log, t0)
+        return _run_ray(todo, out, threads, address, retries, result, log, t0, packages)
     if executor != "local":
         raise ValueError(f"executor must be 'local' or 'ray', got {executor!r}")
     if jobs <= 1:
         for spec in todo:
             _progress(len(result["done"]), len(result["failed"]), 1, len(todo), t0, log)
-            stem, err = _guarded(spec, out, threads)
+            stem, err = _guarded(spec, out, threads, packages)
             result["failed" if err else "done"].append(stem)
             if err:
                 log(f"sweep: {stem} failed:\n{err.strip().splitlines()[-1]}")
         return result
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        futures = {pool.submit(_guarded, s, out, threads): s for s in todo}
+        futures = {pool.submit(_guarded, s, out, threads, packages): s for s in todo}
         for fut in as_completed(futures):
             stem, err = fut.result()
             result["failed" if err else "done"].append(stem)
@@ -250,7 +258,8 @@ def run_sweep(specs: Iterable[RunSpec], out: str | Path, *, executor: str = "loc
 
 
 def _run_ray(todo: list[RunSpec], out: str, threads: int, address: str | None, retries: int,
-             result: dict[str, list[str]], log: Callable[[str], None], t0: float) -> dict[str, list[str]]:
+             result: dict[str, list[str]], log: Callable[[str], None], t0: float,
+             packages: Sequence[str] = ()) -> dict[str, list[str]]:
     try:
         import ray
     except ImportError:
@@ -266,7 +275,7 @@ def _run_ray(todo: list[RunSpec], out: str, threads: int, address: str | None, r
     except ImportError:  # pragma: no cover
         gpus = 0
     remote = ray.remote(num_cpus=threads, num_gpus=gpus, max_retries=retries, retry_exceptions=True)(run_one)
-    pending = {remote.remote(s, out, threads): s for s in todo}
+    pending = {remote.remote(s, out, threads, packages): s for s in todo}
     try:
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
@@ -343,6 +352,16 @@ def _episodes(rs: list[dict[str, Any]], metric: str) -> NDArray[np.float64]:
     return np.concatenate([np.asarray(r["test"]["metrics"][metric], dtype=np.float64) for r in rs])
 
 
+def _by_run(rs: list[dict[str, Any]], metric: str) -> NDArray[np.float64]:
+    """The test episodes' values of ``metric``, a row per run: ``(n_runs, n_episodes)``, the shape the
+    intervals of `vnhc_gym.stats` resample (the runs, then the episodes within each)."""
+    rows = [np.asarray(r["test"]["metrics"][metric], dtype=np.float64) for r in rs]
+    if len({row.size for row in rows}) > 1:
+        raise ValueError(f"the runs of one cell and algorithm must have as many test episodes each, got "
+                         f"{ {r['name']: row.size for r, row in zip(rs, rows, strict=True)} }")
+    return np.stack(rows)
+
+
 def _parity(r: dict[str, Any], target: float, residual: bool) -> tuple[float | None, float | None]:
     """Env steps and training seconds from the agent's own start until its validation score reaches
     ``target`` (a residual agent, which starts at its base: until the lower end of its score's
@@ -366,18 +385,28 @@ def _validation_score(r: dict[str, Any]) -> float:
     return max((float(p["score"]) for p in r.get("curve", []) if "score" in p), default=-math.inf)
 
 
-def report(out: str | Path, reps: int = 2000, log: Callable[[str], None] = print) -> dict[str, Any]:
+#: Bootstrap replicates of every interval of a report: rliable's default.  A verdict compares an end
+#: of an interval with 0.5, and with 2000 replicates the Monte Carlo error of that end (about 0.005
+#: on the probability of improvement) can decide a verdict by itself; with 50 000 it is about 0.001.
+REPORT_REPS = 50_000
+
+
+def report(out: str | Path, reps: int = REPORT_REPS, log: Callable[[str], None] = print) -> dict[str, Any]:
     """Tables and figures from the run outputs alone (wherever they ran), in ``out/report``.
 
-    Per cell (environment, scenario) and algorithm: the mean ``score`` over the test episodes
-    (pooled over training seeds for learned agents) with its 95 % stratified-bootstrap interval, the
-    success rate (episodes that reached the time limit), and the diagnostics (the IQM of the
-    completed steps' ``mean |phi~|``, the termination-aware mean ``|phi~|``).  The cell's best
-    classical baseline and its best learned agent are the ones with the highest *validation* score
-    (chosen without the test episodes); the oracle is the headroom reference.  For each learned
-    agent: the probability that one of its episodes scores above one of the best classical
-    baseline's, with its interval, and the median env steps and seconds to parity (`_parity`) over
-    its runs, or "not reached".
+    Per cell (environment, scenario) and algorithm: the mean ``score`` over the test episodes of
+    all its runs with its 95 % two-level bootstrap interval (`vnhc_gym.stats.interval_estimates`:
+    the training runs redrawn, then the episodes within each drawn run; a classical baseline or the
+    oracle is one run), the success rate (episodes that reached the time limit), and the
+    diagnostics (the IQM of the completed steps' ``mean |phi~|``, the termination-aware mean
+    ``|phi~|``).  The cell's best classical baseline and its best learned agent are the ones with
+    the highest *validation* score (chosen without the test episodes); the oracle is the headroom
+    reference.  For each learned agent: the probability that one of its episodes scores above one
+    of the best classical baseline's, with its interval (the agent's runs and their episodes
+    redrawn, and the baseline's episodes: `vnhc_gym.stats.probability_of_improvement_interval`),
+    and the median env steps and seconds to parity (`_parity`) over its runs, or "not reached".
+    Every row and verdict states the runs x episodes it rests on.  ``reps``: bootstrap replicates of
+    each interval (`REPORT_REPS` by default).
     Files: ``comparison.{json,csv,md}`` (every row), ``headline.md`` (one line a cell: the oracle,
     the best classical, the best learned and the verdict), ``verdict.png`` (the same at a glance),
     ``learning_curves_<env>.png`` and ``performance_profile.png``.
@@ -402,13 +431,13 @@ def report(out: str | Path, reps: int = 2000, log: Callable[[str], None] = print
     for (env, scenario), cell in sorted(cells.items()):
         classical = {a: rs[0] for a, rs in cell.runs.items() if a in CLASSICAL_ALGOS}
         best_name = max(classical, key=lambda a: classical[a]["validation_score"]) if classical else None
-        best_scores = _episodes([classical[best_name]], SCORE) if best_name else None
+        best_scores = _by_run([classical[best_name]], SCORE) if best_name else None
         for algo, rs in sorted(cell.runs.items()):
-            values = _episodes(rs, SCORE)
-            iv = stats.interval_estimates({"x": values[:, None]}, metric="mean", reps=reps)["x"]
+            values = _by_run(rs, SCORE)  # (runs, episodes): a classical baseline has one run
+            iv = stats.interval_estimates({"x": values}, metric="mean", reps=reps)["x"]
             row: dict[str, Any] = {
                 "env": env, "scenario": scenario, "algo": algo, "runs": len(rs), "episodes": int(values.size),
-                "score": iv.point, "low": iv.low, "high": iv.high,
+                "episodes_per_run": int(values.shape[1]), "score": iv.point, "low": iv.low, "high": iv.high,
                 "success": float(np.mean(_episodes(rs, "success"))),
                 "iqm_abs_phi_sf": stats.iqm(_episodes(rs, "mean_abs_phi_sf")),
                 "horizon_abs_phi_sf": float(np.mean(_episodes(rs, "horizon_abs_phi_sf"))),
@@ -420,8 +449,7 @@ def report(out: str | Path, reps: int = 2000, log: Callable[[str], None] = print
             if "solve_seconds_per_step" in rs[0]:  # the planning baseline's cost, beside its score
                 row["solve_ms_per_step"] = 1e3 * float(np.mean([r["solve_seconds_per_step"] for r in rs]))
             if algo in LEARNED_ALGOS and best_scores is not None:
-                poi = stats.probability_of_improvement_interval(values[:, None], best_scores[:, None],
-                                                                lower_is_better=False, reps=reps)
+                poi = stats.probability_of_improvement_interval(values, best_scores, reps=reps)
                 row.update({"poi": poi.point, "poi_low": poi.low, "poi_high": poi.high})
                 target = float(classical[best_name]["validation_score"])  # type: ignore[index]
                 reached = [_parity(r, target, algo in RESIDUAL_ALGOS) for r in rs]
@@ -454,8 +482,20 @@ def _score(r: dict[str, Any]) -> str:
     return f"{r['score']:.4f} [{r['low']:.4f}, {r['high']:.4f}]"
 
 
+def _basis(r: dict[str, Any]) -> str:
+    """The data a row rests on, e.g. ``"5 runs x 20 episodes"``."""
+    n = int(r["runs"])
+    return f"{n} run{'' if n == 1 else 's'} x {int(r['episodes_per_run'])} episodes"
+
+
+def _p(v: float) -> str:
+    """A probability to two decimals, or three where two would round an end onto 0.5 (where the verdict
+    turns): 0.499 and 0.501 must not both read 0.50."""
+    return f"{v:.3f}" if v != 0.5 and f"{v:.2f}" == "0.50" else f"{v:.2f}"
+
+
 def _poi(r: dict[str, Any]) -> str:
-    return f"{r['poi']:.2f} [{r['poi_low']:.2f}, {r['poi_high']:.2f}]"
+    return f"{_p(r['poi'])} [{_p(r['poi_low'])}, {_p(r['poi_high'])}]"
 
 
 def _parity_text(r: dict[str, Any]) -> tuple[str, str]:
@@ -469,9 +509,9 @@ def _parity_text(r: dict[str, Any]) -> tuple[str, str]:
 def _write_tables(rows: list[dict[str, Any]], dest: Path) -> None:
     import csv
 
-    keys = ["env", "scenario", "algo", "kind", "runs", "episodes", "score", "low", "high", "success",
-            "iqm_abs_phi_sf", "horizon_abs_phi_sf", "best_classical", "poi", "poi_low", "poi_high", "parity_steps",
-            "parity_seconds", "parity_runs", "solve_ms_per_step"]
+    keys = ["env", "scenario", "algo", "kind", "runs", "episodes_per_run", "episodes", "score", "low", "high",
+            "success", "iqm_abs_phi_sf", "horizon_abs_phi_sf", "best_classical", "poi", "poi_low", "poi_high",
+            "parity_steps", "parity_seconds", "parity_runs", "solve_ms_per_step"]
     with open(dest / "comparison.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
         w.writeheader()
@@ -479,14 +519,16 @@ def _write_tables(rows: list[dict[str, Any]], dest: Path) -> None:
     lines = []
     for env in sorted({r["env"] for r in rows}):
         lines += [f"### {env}", "",
-                  "| scenario | algo | runs | score [95% CI] | success | IQM mean abs phi~ | P(beats best classical) "
-                  "| steps to parity | s to parity |", "|---|---|---:|---|---:|---:|---|---:|---:|"]
+                  "| scenario | algo | runs x episodes | score [95% CI] | success | IQM mean abs phi~ "
+                  "| P(beats best classical) | steps to parity | s to parity |",
+                  "|---|---|---:|---|---:|---:|---|---:|---:|"]
         for r in (r for r in rows if r["env"] == env):
             best = " (best)" if r["algo"] == r["best_classical"] else ""
             if "solve_ms_per_step" in r:
                 best += f" ({r['solve_ms_per_step']:.0f} ms/step)"
             steps, secs = _parity_text(r)
-            lines.append(f"| {r['scenario']} | {r['algo']}{best} | {r['runs']} | {_score(r)} | {r['success']:.2f} | "
+            lines.append(f"| {r['scenario']} | {r['algo']}{best} | {r['runs']} x {r['episodes_per_run']} | {_score(r)} "
+                         f"| {r['success']:.2f} | "
                          f"{_fmt(r['iqm_abs_phi_sf'])} | {_poi(r) if 'poi' in r else ''} | {steps} | {secs} |")
         lines.append("")
     (dest / "comparison.md").write_text("\n".join(lines))
@@ -495,14 +537,17 @@ def _write_tables(rows: list[dict[str, Any]], dest: Path) -> None:
 def verdict(best_learned: dict[str, Any] | None, best: dict[str, Any] | None) -> tuple[str, str]:
     """The verdict of a cell, ``(winner, words)``, from the best learned agent's probability of
     improvement over the best classical baseline: its interval above 0.5 (``"learned"``), below 0.5
-    (``"classical"``), across it (``"none"``), or no learned agent yet (``"incomplete"``)."""
+    (``"classical"``), across it (``"none"``), or no learned agent yet (``"incomplete"``).  The
+    words name the runs x episodes of both sides, the data the verdict rests on."""
     if best_learned is None or best is None or "poi" not in best_learned:
         return "incomplete", "incomplete"
+    learned, classical = best_learned["algo"], best["algo"]
     if best_learned["poi_low"] > 0.5:
-        return "learned", f"{best_learned['algo']} beats {best['algo']}"
+        return "learned", f"{learned} beats {classical} ({_basis(best_learned)} vs {_basis(best)})"
     if best_learned["poi_high"] < 0.5:
-        return "classical", f"{best['algo']} beats every learned agent"
-    return "none", f"no clear winner ({best_learned['algo']} vs {best['algo']})"
+        return "classical", (f"{classical} beats every learned agent ({learned}, {_basis(best_learned)}, "
+                             f"vs {_basis(best)})")
+    return "none", f"no clear winner ({learned}, {_basis(best_learned)}, vs {classical}, {_basis(best)})"
 
 
 def _cell_rows(rows: list[dict[str, Any]]) -> list[tuple[str, str, dict[str, dict[str, Any]]]]:
@@ -513,11 +558,14 @@ def _cell_rows(rows: list[dict[str, Any]]) -> list[tuple[str, str, dict[str, dic
 def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, Any]]:
     """``headline.md``: a line a cell: the oracle, the best classical baseline, the best learned agent
     (the highest mean validation score over its runs), each with the score's interval and success
-    rate, the probability of improvement, steps and seconds to parity, and the verdict."""
+    rate, the probability of improvement, steps and seconds to parity, and the verdict with the runs
+    x episodes it rests on."""
     lines = ["Mean score over held-out test episodes (the return over the fixed horizon per step, in [0, 1]; "
              "a failed episode's remaining steps count 0), its 95 % bootstrap interval and the success rate "
              "(episodes that reached the time limit). P: the probability that an episode of the best learned agent "
-             "scores above one of the best classical baseline's, with its 95 % interval (**bold**: above 0.5).", "",
+             "scores above one of the best classical baseline's, with its 95 % interval (**bold**: above 0.5). "
+             "A learned agent's intervals redraw its training runs, then the test episodes within each run; a "
+             "classical baseline is one run. Each verdict names the runs x episodes it rests on.", "",
              "| env | scenario | oracle | best classical | best learned | P | steps / s to parity | verdict |",
              "|---|---|---|---|---|---|---|---|"]
     verdicts = []
@@ -532,7 +580,9 @@ def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, An
         why = _why(winner, oracle, best, top, learned)
         verdicts.append({"env": env, "scenario": scenario, "verdict": words, "winner": winner, "why": why,
                          "best_classical": best["algo"] if best else None, "best_learned": top["algo"] if top else None,
-                         "poi_low": top.get("poi_low") if top else None})
+                         "poi_low": top.get("poi_low") if top else None,
+                         "learned_runs_x_episodes": [top["runs"], top["episodes_per_run"]] if top else None,
+                         "classical_runs_x_episodes": [best["runs"], best["episodes_per_run"]] if best else None})
 
         def entry(r: dict[str, Any] | None, name: bool = True) -> str:
             if r is None:
@@ -569,9 +619,15 @@ def _why(winner: str, oracle: dict[str, Any] | None, best: dict[str, Any] | None
     if winner == "learned":
         return "; ".join(p for p in (f"{gap:+.4f} in score", finishes) if p)
     if gap >= 5e-5:  # a gap that shows at the printed precision
-        # A higher mean without the pairwise majority: the classical baseline's episodes mostly score
-        # higher, and a few of them (typically failures) pull its mean down.
-        parts.append(f"{top['algo']} has the higher mean ({gap:+.4f}) but not most pairwise comparisons")
+        if top["poi"] > 0.5:
+            # The pairwise majority too, but an end of the interval on the other side of 0.5: the
+            # spread between its training runs and episodes leaves no difference possible.
+            parts.append(f"{top['algo']} has the higher mean ({gap:+.4f}) and wins {_p(top['poi'])} of the pairwise "
+                         f"comparisons, but the interval reaches {_p(top['poi_low'])}")
+        else:
+            # A higher mean without the pairwise majority: the classical baseline's episodes mostly score
+            # higher, and a few of them (typically failures) pull its mean down.
+            parts.append(f"{top['algo']} has the higher mean ({gap:+.4f}) but not most pairwise comparisons")
         if finishes:
             parts.append(finishes)
     if oracle is not None:
@@ -791,7 +847,7 @@ def run(args: Any) -> int:
     specs = grid(o["envs"], o["scenarios"], o["algos"], o["seeds"], int(o["n_timesteps"]),
                  test_episodes=int(o["test_episodes"]), seeds_by_scenario=o["seeds_by_scenario"])
     result = run_sweep(specs, o["out"], executor=o["executor"], jobs=int(o["jobs"]), threads=int(o["threads"]),
-                       address=o["address"])
+                       address=o["address"], packages=list(getattr(args, "gym_packages", None) or []))
     report(o["out"])
     if result["failed"]:
         print(f"sweep: {len(result['failed'])} runs failed (tracebacks in {o['out']}/runs/*.error):")

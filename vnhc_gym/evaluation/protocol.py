@@ -72,8 +72,9 @@ class EvalResult:
         return int(self.abs_phi.shape[1])
 
     def summary(self, reps: int = 2000) -> dict[str, stats.Interval]:
-        """Each metric's aggregate over episodes (`AGGREGATE`) with its 95 % bootstrap interval."""
-        return {name: stats.interval_estimates({"x": values[:, None]}, metric=AGGREGATE.get(name, "iqm"),
+        """Each metric's aggregate over episodes (`AGGREGATE`) with its 95 % bootstrap interval (the
+        episodes redrawn: one evaluation is one run of `vnhc_gym.stats`)."""
+        return {name: stats.interval_estimates({"x": values[None, :]}, metric=AGGREGATE.get(name, "iqm"),
                                                reps=reps)["x"]
                 for name, values in self.metrics.items()}
 
