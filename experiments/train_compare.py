@@ -81,8 +81,9 @@ def main() -> None:
     ap.add_argument("--report-only", action="store_true",
                     help="run nothing: make the report (and --publish, --ship) from the finished runs in --out")
     ap.add_argument("--ship", action="store_true",
-                    help="copy the median-seed nominal agent of each task and algorithm into vnhc_gym/agents_zoo and "
-                         "the classical settings chosen per cell into vnhc_gym/baselines/settings.json")
+                    help="copy the nominal agent of median validation score (over the seeds) of each task and "
+                         "algorithm into vnhc_gym/agents_zoo and the classical settings chosen per cell into "
+                         "vnhc_gym/baselines/settings.json")
     args = ap.parse_args()
     tasks = list(TASKS)
     if args.quick:
@@ -131,12 +132,39 @@ def main() -> None:
         ship(Path(args.out))
 
 
+def validation_score(run: dict) -> float:
+    """The validation score of a learned run's saved model: its learning curve's point at
+    ``best_steps`` (the best checkpoint, the model ``<stem>.zip`` holds and the package would ship).
+
+    Raises
+    ------
+    ValueError
+        If the run's sidecar has no validated point at ``best_steps``.
+    """
+    best = run.get("best_steps")
+    points = [p for p in run.get("curve") or [] if p.get("steps") == best and "score" in p]
+    if best is None or not points:
+        raise ValueError(f"run {run.get('name')!r} has no validation score at its best checkpoint "
+                         f"(best_steps {best!r})")
+    return float(points[0]["score"])
+
+
+def median_seed(runs: list[dict]) -> dict:
+    """The run of median validation score among a cell's seeds (the upper median of an even
+    number; equal scores keep the seeds' order).  The test episodes choose nothing: they only score."""
+    import numpy as np
+
+    if not runs:
+        raise ValueError("no runs to choose from")
+    scores = [validation_score(r) for r in runs]
+    return runs[int(np.argsort(scores, kind="stable")[len(scores) // 2])]
+
+
 def ship(out: Path) -> None:
     """The settings the package ships (the classical baselines' and the oracle's, per cell) and its
-    agents (the median-seed nominal agent of each task and algorithm whose nominal cell is finished)."""
+    agents (of each task and algorithm whose nominal cell is finished, the nominal seed of median
+    validation score, `median_seed`)."""
     import json
-
-    import numpy as np
 
     from vnhc_gym.sweep import load_runs
 
@@ -155,9 +183,7 @@ def ship(out: Path) -> None:
             if len(rs) < len(SEEDS["nominal"]):  # only from a finished cell
                 print(f"not shipping {task}-{algo}: {len(rs)} of {len(SEEDS['nominal'])} nominal runs finished")
                 continue
-            # The median seed by the test score (each agent runs in the benchmark only on its own cell).
-            scores = [float(np.mean(r["test"]["metrics"]["score"])) for r in rs]
-            median = rs[int(np.argsort(scores)[len(scores) // 2])]
+            median = median_seed(rs)
             stem = f"{task}-{algo}"
             model = out / "runs" / f"{median['name']}.zip"
             if not model.exists():  # a run restored from published records has no model file

@@ -185,3 +185,34 @@ def test_rendered_site_references_nothing_outside_the_repository(site: Path) -> 
         if hits := _offending_lines(text):
             offending[str(page.relative_to(site))] = hits
     assert not offending, f"rendered pages pointing outside the repository (check the docstrings): {offending}"
+
+
+def test_every_shipped_environment_has_a_card_page() -> None:
+    """Each of the package's own tasks has its page under ``docs/envs/`` that renders its environment
+    class's card, a row in the environments overview, and an entry in the site's nav."""
+    from vnhc_gym.tasks import shipped_tasks
+
+    nav = (REPO / "mkdocs.yml").read_text(encoding="utf-8")
+    overview = (DOCS / "envs" / "index.md").read_text(encoding="utf-8")
+    tasks = shipped_tasks()
+    assert tasks
+    for name, entry in tasks.items():
+        page = DOCS / "envs" / f"{name}.md"
+        assert page.is_file(), f"no card page {page.relative_to(REPO)}"
+        text = page.read_text(encoding="utf-8")
+        assert f"::: {entry.module}.{entry.env_name}Env" in text, f"{page.name} does not render {entry.env_name}Env"
+        assert f"vnhc_gym/{entry.env_name}-v1" in text, page.name
+        assert f"envs/{name}.md" in nav, f"envs/{name}.md is not in the nav of mkdocs.yml"
+        assert f"[`vnhc_gym/{entry.env_name}-v1`]({name}.md)" in overview, f"envs/index.md has no row for {name}"
+
+
+def test_card_pages_render_the_cards(site: Path) -> None:
+    """The built card page of every shipped task shows its card's sections (mkdocstrings rendered
+    the class docstring)."""
+    from vnhc_gym.tasks import shipped_tasks
+
+    for name in shipped_tasks():
+        html = re.sub(r"<[^>]+>", " ", (site / "envs" / name / "index.html").read_text(encoding="utf-8"))
+        for section in ("Description", "Action Space", "Observation Space", "Rewards", "Starting State",
+                        "Episode End", "Arguments", "Scenarios", "Info", "Version History"):
+            assert section in html, f"envs/{name}: the card's {section!r} is not on the page"

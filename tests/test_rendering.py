@@ -103,13 +103,13 @@ def test_non_finite_or_huge_numbers_anywhere_never_raise(renderer: PlanarRendere
                 Body(2.0, 0.0, heading=0.0, size=bad, velocity=(1.0, bad), label="b"), Body(0.0, 0.0)],
         links=[((bad, 0.0), (1.0, 1.0)), Link((0.0, 0.0), (1.0, bad), width=bad), ((0.0, 0.0), (1.0, 1.0))],  # type: ignore[arg-type]
         guides=[((0.0, bad), (1.0, 1.0)), Link((bad, bad), (bad, bad))],
-        phi=[bad, 0.5, bad], phi_scale=bad, phi_units="m/s",
+        phi=[bad, 0.5, bad], phi_bar_scale=bad, phi_units="m/s",
         field=lambda x, y: np.full((*np.shape(x), 2), bad),
         center=(bad, 0.0), extent=bad, text=["t = 0", str(bad)], arrow_scale=bad)
     assert _is_frame(renderer.draw(scene))
     everything_bad = Scene(bodies=[Body(bad, bad, heading=bad, size=bad, velocity=(bad, bad))],
                            links=[((bad, bad), (bad, bad))], guides=[((bad, bad), (bad, bad))], phi=[bad] * 3,
-                           phi_scale=bad, field=lambda x, y: np.full((*np.shape(x), 2), bad), center=(bad, bad),
+                           phi_bar_scale=bad, field=lambda x, y: np.full((*np.shape(x), 2), bad), center=(bad, bad),
                            extent=bad, arrow_scale=bad)
     assert _is_frame(renderer.draw(everything_bad))
 
@@ -165,14 +165,30 @@ def test_every_phi_component_gets_a_bar(renderer: PlanarRenderer) -> None:
 def test_many_phi_components_still_render(renderer: PlanarRenderer, n: int) -> None:
     f = renderer.draw(Scene(phi=list(np.linspace(-0.9, 0.9, n)), phi_units="m/s"))
     assert _is_frame(f) and _mask(f, _PHI_BAR).any()
-    saturated = renderer.draw(Scene(phi=[3.0] * n))  # beyond phi_scale: clipped, in red
+    saturated = renderer.draw(Scene(phi=[3.0] * n))  # beyond phi_bar_scale: clipped, in red
     assert _mask(saturated, _PHI_SATURATED).any() and not _mask(saturated, _PHI_BAR).any()
 
 
-def test_phi_scale_sets_the_full_bar(renderer: PlanarRenderer) -> None:
-    small = _mask(renderer.draw(Scene(phi=[0.5], phi_scale=10.0)), _PHI_BAR).sum()
-    big = _mask(renderer.draw(Scene(phi=[0.5], phi_scale=1.0)), _PHI_BAR).sum()
+def test_phi_bar_scale_sets_the_full_bar(renderer: PlanarRenderer) -> None:
+    small = _mask(renderer.draw(Scene(phi=[0.5], phi_bar_scale=10.0)), _PHI_BAR).sum()
+    big = _mask(renderer.draw(Scene(phi=[0.5], phi_bar_scale=1.0)), _PHI_BAR).sum()
     assert 0 < small < big
+
+
+def test_the_rewards_phi_scale_leaves_the_bars_alone() -> None:
+    """An environment's ``phi_scale`` divides the raw reward only; the bars' length is the scene's
+    ``phi_bar_scale``."""
+    import gymnasium as gym
+
+    import vnhc_gym  # noqa: F401
+
+    frames = []
+    for scale in (1.0, 100.0):
+        env = gym.make("vnhc_gym/USVStream-v1", render_mode="rgb_array", phi_scale=scale)
+        env.reset(seed=3)
+        frames.append(env.render())
+        env.close()
+    assert _mask(frames[0], _PHI_BAR).any() and np.array_equal(frames[0], frames[1])
 
 
 # --------------------------------------------------------------------------- the field
@@ -232,6 +248,36 @@ def test_rgb_array_needs_no_video_driver(tmp_path: Path) -> None:
                          cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().endswith("ok")
+
+
+def test_headless_renders_of_every_environment_print_nothing(tmp_path: Path) -> None:
+    """On a machine without a display, an rgb_array render of every registered environment prints
+    nothing on stdout or stderr (no pygame greeting, no display probe); human mode says once that no
+    window shows, in Gymnasium's warning, and prints nothing else."""
+    from vnhc_gym.tasks import env_ids, shipped_tasks
+
+    code = ("import warnings\nimport gymnasium as gym\nimport vnhc_gym\n"
+            f"for env_id in {env_ids(shipped_only=True)!r}:\n"
+            "    env = gym.make(env_id, render_mode='rgb_array')\n"
+            "    env.reset(seed=0)\n"
+            "    assert env.render().shape == (500, 500, 3)\n"
+            "    env.close()\n"
+            "with warnings.catch_warnings(record=True) as caught:\n"
+            "    warnings.simplefilter('always')\n"
+            "    env = gym.make(env_id, render_mode='human')\n"
+            "    env.reset(seed=0)\n"
+            "    env.close()\n"
+            "import sys\nsys.stderr.write(''.join(str(w.message) for w in caught if 'display' in str(w.message)))\n")
+    assert shipped_tasks()
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("SDL_VIDEODRIVER", "SDL_AUDIODRIVER", "DISPLAY", "WAYLAND_DISPLAY", "XDG_RUNTIME_DIR",
+                        "PYGAME_HIDE_SUPPORT_PROMPT")}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600,
+                         cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout == ""
+    assert "without a display" in out.stderr and "XDG" not in out.stderr
+    assert out.stderr.count("\n") == 0, out.stderr  # the one warning, nothing else
 
 
 def test_human_mode_shows_a_window_and_returns_none(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -28,6 +28,8 @@ Examples
 from __future__ import annotations
 
 import math
+import os
+import sys
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -61,7 +63,7 @@ _REL = (0, 150, 60)
 _PANEL = (250, 250, 250)
 _PANEL_EDGE = (170, 170, 170)
 _PHI_BAR = (52, 101, 164)
-_PHI_SATURATED = (204, 0, 0)  # the bar is clipped: |phi| exceeds phi_scale
+_PHI_SATURATED = (204, 0, 0)  # the bar is clipped: |phi| exceeds phi_bar_scale
 _AXIS_COLORS: tuple[Color, Color, Color] = ((204, 0, 0), (0, 150, 60), (52, 101, 164))  # body x, y, z
 
 
@@ -141,10 +143,12 @@ class Scene:
         Thin lines under everything (desired directions, rails); a bare pair is a 1-pixel grey line.
     phi : sequence of float
         Every component of the constraint ``phi``, shown as labelled bars with their values in a
-        panel at the top right.  A bar spans half the panel's bar area when ``|phi| = phi_scale``
+        panel at the top right.  A bar spans half the panel's bar area when ``|phi| = phi_bar_scale``
         and is drawn red (clipped) beyond it; non-finite components get no bar.
-    phi_scale : float
-        ``|phi|`` of a full-length bar (a non-positive or non-finite value means 1).
+    phi_bar_scale : float
+        ``|phi|`` of a full-length bar (a non-positive or non-finite value means 1).  A length on
+        the picture only: the environments' ``phi_scale`` is the raw reward's divisor and does not
+        change the bars.
     phi_units : str
         Units written in the panel's title.
     field : callable or None
@@ -169,7 +173,7 @@ class Scene:
     links: Sequence[LinkLike] = ()
     guides: Sequence[LinkLike] = ()
     phi: Sequence[float] = ()
-    phi_scale: float = 1.0
+    phi_bar_scale: float = 1.0
     phi_units: str = ""
     field: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]] | None = None
     center: Point | None = None
@@ -182,6 +186,8 @@ class Scene:
 
 
 def _import_pygame() -> Any:
+    # pygame prints a greeting on stdout when first imported; a render prints nothing.
+    os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
     try:
         import pygame
     except ImportError as e:  # pragma: no cover - depends on the installation
@@ -270,6 +276,15 @@ class _Canvas:
         self.window: Any = None
         self.clock: Any = None
         if render_mode == "human":
+            if sys.platform.startswith("linux") and not any(
+                    os.environ.get(k) for k in ("SDL_VIDEODRIVER", "WAYLAND_DISPLAY", "DISPLAY")):
+                # No display: SDL would probe Wayland, whose library prints "XDG_RUNTIME_DIR is
+                # invalid" on stderr, then draw into no window.  Say so once, and skip the probe.
+                from gymnasium import logger
+
+                logger.warn("render_mode='human' on a machine without a display (no DISPLAY or WAYLAND_DISPLAY): "
+                            "no window is shown; use render_mode='rgb_array' for frames")
+                os.environ["SDL_VIDEODRIVER"] = "dummy"
             self.pg.display.init()
             self.pg.display.set_caption(caption)
             self.window = self.pg.display.set_mode((self.size, self.size))
@@ -577,7 +592,7 @@ class PlanarRenderer:
             return
         if not phi:
             return
-        scale = _num(getattr(scene, "phi_scale", 1.0))
+        scale = _num(getattr(scene, "phi_bar_scale", 1.0))
         if not (math.isfinite(scale) and scale > 0):
             scale = 1.0
         width, x0, y0 = 210, c.size - 218, 8
@@ -676,10 +691,12 @@ def axes_3d(R: NDArray[np.float64], origin: Point = (0.0, 0.0), length: float = 
 # --------------------------------------------------------------------------- the shipped tasks
 
 
-def flock_scene(n_agents: int, state: NDArray[np.float64], phi: NDArray[np.float64], phi_scale: float = 10.0) -> Scene:
+def flock_scene(n_agents: int, state: NDArray[np.float64], phi: NDArray[np.float64],
+                phi_bar_scale: float = 10.0) -> Scene:
     """Particles in their vertical plane: ``state`` is ``(x, z, xd, zd)``, each ``(n_agents,)``, the
     leader (red) last; a grey guide through each follower along the leader's direction of motion;
-    the camera on the group's centroid, at least 30 m across."""
+    the camera on the group's centroid, at least 30 m across; ``phi`` as bars, full length at
+    ``phi_bar_scale``."""
     n = n_agents
     x, z, vx, vz = np.asarray(state, dtype=np.float64).reshape(4, n)
     ok = np.isfinite(x) & np.isfinite(z) & (np.abs(x) <= _WORLD_LIMIT) & (np.abs(z) <= _WORLD_LIMIT)
@@ -703,7 +720,7 @@ def flock_scene(n_agents: int, state: NDArray[np.float64], phi: NDArray[np.float
                    velocity=(float(vx[i]), float(vz[i])), color=_LEADER if i == lead else _FOLLOWER)
               for i in range(n) if ok[i]]
     return Scene(bodies=bodies, guides=guides, phi=[float(v) for v in np.asarray(phi, np.float64).ravel()],
-                 phi_scale=phi_scale, phi_units="m^2/s^2", center=centre, extent=extent)
+                 phi_bar_scale=phi_bar_scale, phi_units="m^2/s^2", center=centre, extent=extent)
 
 
 def _arrow_tip(x: float, y: float, vx: float, vy: float, arrow_scale: float, view_width: float) -> Point:
@@ -714,7 +731,7 @@ def _arrow_tip(x: float, y: float, vx: float, vy: float, arrow_scale: float, vie
 
 
 def hull_scene(state: NDArray[np.float64], phi: NDArray[np.float64], current: Callable[[Any, Any], Any] | None = None,
-               *, phi_scale: float = 1.0, phi_units: str = "m/s", view_width: float = 20.0,
+               *, phi_bar_scale: float = 1.0, phi_units: str = "m/s", view_width: float = 20.0,
                arrow_scale: float = 2.0, size: float = 2.4) -> Scene:
     """A planar rigid body seen from above, ``state`` starting ``(x, y, theta, xd, yd, ...)``: its
     hull along ``theta`` and its velocity (red), in a ``view_width`` view centred on it; with a
@@ -739,7 +756,7 @@ def hull_scene(state: NDArray[np.float64], phi: NDArray[np.float64], current: Ca
     text = [f"x = {x:.2f} m, y = {y:.2f} m" if centred else "position not finite",
             "red: velocity" + (", green: relative to water" if current is not None else "")]
     return Scene(bodies=bodies, links=links, phi=[float(v) for v in np.asarray(phi, np.float64).ravel()],
-                 phi_scale=phi_scale, phi_units=phi_units, field=current,
+                 phi_bar_scale=phi_bar_scale, phi_units=phi_units, field=current,
                  center=(x, y) if centred else (0.0, 0.0), extent=view_width, text=text)
 
 
@@ -751,10 +768,10 @@ class FlockingRenderer:
     red; each particle carries an arrow along its velocity, of length proportional to its speed
     divided by the largest speed (the longest is 60 px); a grey line through each follower shows
     the leader's direction (the constraint asks the follower's arrow to lie on it).  Every
-    component of ``phi`` is shown as a bar (full length at `phi_scale`).
+    component of ``phi`` is shown as a bar (full length at `phi_bar_scale`).
     """
 
-    phi_scale = 10.0  #: |phi| of a full-length bar (m^2/s^2)
+    phi_bar_scale = 10.0  #: |phi| of a full-length bar (m^2/s^2)
 
     def __init__(self, n_agents: int, render_mode: str, fps: float = 20) -> None:
         if int(n_agents) != n_agents or n_agents < 2:
@@ -765,7 +782,7 @@ class FlockingRenderer:
 
     def scene(self, state: NDArray[np.float64], phi: NDArray[np.float64]) -> Scene:
         """The [`Scene`][vnhc_gym.envs.rendering.Scene] of one frame (`flock_scene`)."""
-        return flock_scene(self.n_agents, state, phi, self.phi_scale)
+        return flock_scene(self.n_agents, state, phi, self.phi_bar_scale)
 
     def draw(self, state: NDArray[np.float64], phi: NDArray[np.float64]) -> NDArray[np.uint8] | None:
         """Draw the flock; returns the frame (``rgb_array``) or None (``human``)."""
@@ -783,12 +800,12 @@ class USVRenderer:
     oriented triangle pointing along ``theta``, the boat's velocity (red) and its velocity
     relative to the water (green; the constraint asks it to point along the hull), both at
     2 m per m/s (capped at 9 m).  Every component of ``phi`` is shown as a bar (full length at
-    `phi_scale`).
+    `phi_bar_scale`).
     """
 
     view_width = 20.0  #: metres across the frame
     arrow_scale = 2.0  #: metres of arrow per m/s of velocity
-    phi_scale = 1.0  #: |phi| of a full-length bar (m/s)
+    phi_bar_scale = 1.0  #: |phi| of a full-length bar (m/s)
 
     def __init__(self, render_mode: str, fps: float = 20) -> None:
         self._planar = PlanarRenderer(render_mode, fps, "vnhc_gym")
@@ -797,7 +814,7 @@ class USVRenderer:
     def scene(self, state: NDArray[np.float64], phi: NDArray[np.float64],
               current: Callable[[Any, Any], Any]) -> Scene:
         """The [`Scene`][vnhc_gym.envs.rendering.Scene] of one frame (`hull_scene`)."""
-        return hull_scene(state, phi, current, phi_scale=self.phi_scale, view_width=self.view_width,
+        return hull_scene(state, phi, current, phi_bar_scale=self.phi_bar_scale, view_width=self.view_width,
                           arrow_scale=self.arrow_scale)
 
     def draw(self, state: NDArray[np.float64], phi: NDArray[np.float64],
