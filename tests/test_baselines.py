@@ -385,10 +385,13 @@ def test_adaptive_law_lowers_the_usv_phi_under_mismatch() -> None:
 # --------------------------------------------------------------------------- classical baselines and tuning
 def test_make_classical_builds_each_baseline_by_name() -> None:
     env = gym.make(USV)
+    from vnhc_gym.baselines.kalman import KalmanController
     from vnhc_gym.baselines.mpc import MPCController
+    from vnhc_gym.baselines.safety import SafeLaw
 
     expected = {"law": GeometricController, "tuned_law": GeometricController, "observer": ObserverController,
-                "adaptive": AdaptiveController, "mpc": MPCController}
+                "adaptive": AdaptiveController, "mpc": MPCController, "safe_law": SafeLaw,
+                "kalman": KalmanController}
     assert set(CLASSICAL) == set(expected)
     for name, cls in expected.items():
         pol = make_classical(name, env)
@@ -457,7 +460,10 @@ def test_tuning_cannot_be_pointed_at_test_seeds(monkeypatch: pytest.MonkeyPatch)
 def test_shipped_settings_cover_every_task_scenario_and_baseline() -> None:
     """Every shipped task has tuned settings in every scenario for every classical baseline and the
     oracle, each setting one of its tuning grid's candidates (so the benchmark's "tuned" rows are
-    tuned, and a new task cannot silently fall back to the k = 5 law)."""
+    tuned, and a new task cannot silently fall back to the k = 5 law).  A setting a cell leaves out
+    takes the class's default, which must then be one of the grid's candidates too."""
+    import inspect
+
     from vnhc_gym.baselines.tuning import CLASSICAL, REFERENCE
     from vnhc_gym.benchmark import settings
     from vnhc_gym.envs.config import SCENARIOS
@@ -470,7 +476,23 @@ def test_shipped_settings_cover_every_task_scenario_and_baseline() -> None:
             cell = table.get(task, {}).get(scenario)
             assert cell is not None, f"no tuned settings for {task}/{scenario}"
             for name in benchmarked:
-                _, grid = {**CLASSICAL, **REFERENCE}[name]
-                assert set(cell[name]) == set(grid), (task, scenario, name)
+                cls, grid = {**CLASSICAL, **REFERENCE}[name]
+                assert set(cell[name]) <= set(grid) and "gain" in cell[name], (task, scenario, name)
                 for key, value in cell[name].items():
                     assert value in grid[key], (task, scenario, name, key, value)
+                defaults = inspect.signature(cls).parameters
+                for key in set(grid) - set(cell[name]):
+                    assert defaults[key].default in grid[key], (task, scenario, name, key)
+
+
+def test_the_tuned_law_tunes_its_variant_and_chooses_the_sampled_law_where_the_hold_limits_the_gain() -> None:
+    """On the cart-pole's coarse control period (0.1 s) the held law loses ``phi`` once ``k dt``
+    nears 2 (k = 20), while the sampled-data law decays as ``exp(-k dt)`` at any gain: ``tune``
+    must be able to pick it, with a gain the plain law cannot use."""
+    _, grid = CLASSICAL["tuned_law"]
+    assert set(grid["variant"]) == {"plain", "sampled"} and max(grid["gain"]) >= 160.0
+    best, table = tune("tuned_law", env_id("cartpole"), "coarse", n_episodes=3)
+    assert {row["variant"] for row in table} == {"plain", "sampled"}
+    assert best["variant"] == "sampled" and best["gain"] >= 40.0
+    plain_at_20 = next(r for r in table if r["variant"] == "plain" and r["gain"] == 20.0)
+    assert plain_at_20["score"] < 0.5 < max(r["score"] for r in table)

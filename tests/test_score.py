@@ -88,7 +88,7 @@ def test_tuning_ranks_on_the_score_where_the_completed_steps_mean_disagrees(monk
 
     monkeypatch.setattr(tuning, "evaluate_classical", fake)
     best, rows = tuning.tune("tuned_law", USV, "nominal", n_episodes=4)
-    assert best == {"gain": 5.0}
+    assert best["gain"] == 5.0  # (the first of the grid's settings at that gain: ties go to the first)
     assert min(rows, key=lambda r: table.get(r["gain"], (0.9, 2e-2))[1])["gain"] == 20.0  # the other ranking
     assert {r["gain"]: r["success"] for r in rows}[20.0] == 0.0
 

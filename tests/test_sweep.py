@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import shutil
 from dataclasses import asdict
 from pathlib import Path
@@ -310,12 +311,13 @@ def test_a_classical_run_tunes_on_validation_seeds_and_tests_on_test_seeds(tmp_p
     monkeypatch.setattr(vnhc_gym.evaluation.protocol, "evaluate", recording)
     spec = RunSpec("tuned_law", "usv", "nominal", test_episodes=4, eval_episodes=2)
     meta = sweep.run_one(spec, tmp_path)
-    n_settings = len(CLASSICAL["tuned_law"][1]["gain"])
+    grid_of = CLASSICAL["tuned_law"][1]
+    n_settings = math.prod(len(values) for values in grid_of.values())
     assert len(calls) == n_settings + 1
     assert all(VALIDATION_SEED <= s and s + n - 1 < TEST_SEED and n == 2 for s, n in calls[:-1])
     assert calls[-1] == (TEST_SEED, 4)
     best = max(meta["tuning"], key=lambda row: row["score"])
-    assert meta["settings"] == {"gain": best["gain"]} and meta["validation_score"] == best["score"]
+    assert meta["settings"] == {k: best[k] for k in grid_of} and meta["validation_score"] == best["score"]
     assert status(spec, tmp_path) == "done"
 
 

@@ -5,6 +5,8 @@
   sampled-data variant).
 * [`ObserverController`][vnhc_gym.baselines.ObserverController]: the same law fed by a state
   observer (noisy observations).
+* [`KalmanController`][vnhc_gym.baselines.KalmanController]: the same law fed by an extended Kalman
+  filter (the nominal model's exact Jacobians, the environment's own observation noise).
 * [`AdaptiveController`][vnhc_gym.baselines.AdaptiveController]: the law with the mismatched
   parameters estimated online.
 * [`MPCController`][vnhc_gym.baselines.MPCController]: the planning baseline, model-predictive
@@ -12,6 +14,9 @@
 * [`OracleController`][vnhc_gym.baselines.OracleController]: the headroom reference, the
   sampled-data law on the environment's true state and parameters (not an observation-based
   controller).
+* [`SafetyFilter`][vnhc_gym.baselines.SafetyFilter]: any policy through a control barrier function
+  on the task's velocity limits (its force changed as little as possible, only near a limit);
+  [`SafeLaw`][vnhc_gym.baselines.SafeLaw] is the law through it.
 * `ZeroPolicy` (no force) and `RandomPolicy` (uniform actions, seeded).
 
 Every policy takes a single, wrapped or vector environment and predicts for one observation
@@ -20,12 +25,14 @@ Every policy takes a single, wrapped or vector environment and predicts for one 
 
 from vnhc_gym.baselines.adaptive import AdaptiveController
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
+from vnhc_gym.baselines.kalman import KalmanController
 from vnhc_gym.baselines.mpc import MPCController
 from vnhc_gym.baselines.observer import ObserverController
 from vnhc_gym.baselines.oracle import OracleController
 from vnhc_gym.baselines.policy import Policy, RandomPolicy, ZeroPolicy, task_of
+from vnhc_gym.baselines.safety import SafeLaw, SafetyFilter
 from vnhc_gym.baselines.tuning import CLASSICAL, REFERENCE, make_classical, tune
 
-__all__ = ["AdaptiveController", "CLASSICAL", "DEFAULT_GAIN", "GeometricController", "MPCController",
-           "ObserverController", "OracleController", "Policy", "REFERENCE", "RandomPolicy", "ZeroPolicy",
-           "make_classical", "task_of", "tune"]
+__all__ = ["AdaptiveController", "CLASSICAL", "DEFAULT_GAIN", "GeometricController", "KalmanController",
+           "MPCController", "ObserverController", "OracleController", "Policy", "REFERENCE", "RandomPolicy", "SafeLaw",
+           "SafetyFilter", "ZeroPolicy", "make_classical", "task_of", "tune"]

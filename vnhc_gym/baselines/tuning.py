@@ -7,6 +7,14 @@ over the fixed horizon per step, a terminated episode's remaining steps counting
 `vnhc_gym.evaluation.metrics`), so a setting that fails some episodes cannot win on how well it
 held the constraint before failing.
 
+``tuned_law`` tunes the law's variant with its gain: the plain law held over the control period
+(``phi`` shrinks by about ``1 - k dt`` per period, so it is lost near ``k dt = 2``) or the
+sampled-data law, exact for the hold (``exp(-k dt)`` per period at any gain), hence the gains up to
+160.  ``safe_law`` is the same family through the safety filter of the task's velocity limits
+(`vnhc_gym.baselines.safety`), its ``margin`` and ``rate`` tuned too; on a task without velocity
+limits it would be its base, so [`tune`][vnhc_gym.baselines.tune] skips it there
+([`applicable`][vnhc_gym.baselines.tuning.applicable]).
+
 ``REFERENCE`` holds the headroom reference ``oracle``, tuned the same way: the sampled-data law on
 the environment's true state and parameters (`vnhc_gym.baselines.oracle`).  It is not a
 controller one could field, and never a cell's best classical baseline; it says how far that
@@ -20,23 +28,34 @@ from typing import Any
 
 from vnhc_gym.baselines.adaptive import AdaptiveController
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
+from vnhc_gym.baselines.kalman import KalmanController
 from vnhc_gym.baselines.mpc import MPCController
 from vnhc_gym.baselines.observer import ObserverController
 from vnhc_gym.baselines.oracle import OracleController
+from vnhc_gym.baselines.safety import SafeLaw
 
-__all__ = ["CLASSICAL", "REFERENCE", "SELECTION_METRIC", "evaluate_classical", "make_classical", "selection_score",
-           "tune"]
+__all__ = ["CLASSICAL", "REFERENCE", "SELECTION_METRIC", "applicable", "evaluate_classical", "make_classical",
+           "selection_score", "tune"]
 
 #: The metric that settings (and the best classical baseline of a cell) are chosen on: its mean over
 #: the validation episodes, higher is better.
 SELECTION_METRIC = "score"
 
-#: Baseline name -> (policy class, grid of keyword arguments).  ``law`` is the fixed reference
-#: (k = 5); the others are tuned per (environment, scenario).
+#: The law's variants: held over the control period, and the sampled-data law (exact for the hold).
+LAW_VARIANTS = ["plain", "sampled"]
+
+#: Baseline name -> (policy class, grid of keyword arguments; every combination is a candidate).
+#: ``law`` is the fixed reference (k = 5); the others are tuned per (environment, scenario).  The
+#: plain law's high gains and the sampled law's low ones are near-duplicates or losers, kept because
+#: a product grid is what the tables and the sweep read, and each costs a fraction of a second.
 CLASSICAL: dict[str, tuple[type, dict[str, list[Any]]]] = {
     "law": (GeometricController, {"gain": [DEFAULT_GAIN]}),
-    "tuned_law": (GeometricController, {"gain": [1.0, 2.0, 3.0, 5.0, 8.0, 12.0, 20.0]}),
+    "tuned_law": (GeometricController, {"gain": [1.0, 2.0, 3.0, 5.0, 8.0, 12.0, 20.0, 40.0, 80.0, 160.0],
+                                        "variant": LAW_VARIANTS}),
+    "safe_law": (SafeLaw, {"gain": [5.0, 20.0, 40.0, 80.0, 160.0], "variant": LAW_VARIANTS,
+                           "margin": [0.2, 0.5], "rate": [5.0, 20.0]}),
     "observer": (ObserverController, {"gain": [2.0, 5.0, 10.0], "alpha": [0.3, 0.1, 0.03, 0.01, 0.003]}),
+    "kalman": (KalmanController, {"gain": [5.0, 10.0, 20.0, 80.0], "variant": LAW_VARIANTS, "q": [1e-4, 1e-2]}),
     "adaptive": (AdaptiveController, {"gain": [2.0, 5.0, 10.0]}),
     "mpc": (MPCController, {"gain": [2.0, 5.0, 10.0, 20.0], "horizon": [8]}),
 }
@@ -55,6 +74,27 @@ def make_classical(name: str, env: Any, **kwargs: Any) -> Any:
     policy = cls(env, **kwargs)
     policy.name = name
     return policy
+
+
+def applicable(name: str, env_id: str, scenario: str = "nominal", **env_kwargs: Any) -> bool:
+    """Whether the baseline ``name`` can act differently from its base in a cell: False for the
+    safety filter on a task without velocity limits (a class says so with a static ``applies(task)``),
+    True for every other baseline."""
+    table = {**CLASSICAL, **REFERENCE}
+    if name not in table:
+        raise ValueError(f"unknown classical baseline {name!r}; valid: {sorted(table)}")
+    check = getattr(table[name][0], "applies", None)
+    if not callable(check):
+        return True
+    import gymnasium as gym
+
+    from vnhc_gym.baselines.policy import task_of
+
+    env = gym.make(env_id, scenario=scenario, **env_kwargs)
+    try:
+        return bool(check(task_of(env)))
+    finally:
+        env.close()
 
 
 def evaluate_classical(name: str, settings: dict[str, Any], env_id: str, scenario: str, n_episodes: int, seed: int,
@@ -88,7 +128,9 @@ def tune(name: str, env_id: str, scenario: str, n_episodes: int = 10, seed: int 
     Returns ``(best_kwargs, table)``; ``table`` rows hold the settings, ``score`` (the mean score over
     the validation episodes, [`selection_score`][vnhc_gym.baselines.tuning.selection_score]) and
     ``success`` (the fraction of them that reached the time limit).  The highest score wins; the
-    first setting of the grid wins a tie.
+    first setting of the grid wins a tie.  A baseline that is not
+    [`applicable`][vnhc_gym.baselines.tuning.applicable] in the cell (the safety filter where the task
+    has no velocity limit) is skipped: ``({}, [])``, no episode run.
     """
     from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED
 
@@ -99,6 +141,8 @@ def tune(name: str, env_id: str, scenario: str, n_episodes: int = 10, seed: int 
     table_of = {**CLASSICAL, **REFERENCE}
     if name not in table_of:
         raise ValueError(f"unknown classical baseline {name!r}; valid: {sorted(table_of)}")
+    if not applicable(name, env_id, scenario, **env_kwargs):
+        return {}, []
     _, grid = table_of[name]
     keys = sorted(grid)
     table = []

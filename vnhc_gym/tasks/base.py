@@ -88,6 +88,10 @@ class Task:
     uncertain : tuple of str
         Names of the parameters the ``mismatch`` scenario perturbs (an adaptive controller estimates
         them), in [`controller_model`][vnhc_gym.tasks.base.Task.controller_model]'s parameter names.
+    filtered_params : tuple of str
+        Parameters of [`controller_model`][vnhc_gym.tasks.base.Task.controller_model] that a
+        controller reads from the observation and that change along an episode (a current's local
+        model): a Kalman filter estimates them with the state.
     draw_stages : int
         Number of stages of ``draw`` (a stage after the first sees the model's outputs at the state
         drawn so far).
@@ -125,6 +129,7 @@ class Task:
     phi_sf_scale: float = 1.0  # a class attribute, or set by the constructor from the options
     angles: ClassVar[tuple[int, ...]] = ()
     uncertain: ClassVar[tuple[str, ...]] = ()
+    filtered_params: ClassVar[tuple[str, ...]] = ()
     draw_stages: ClassVar[int] = 1
     mismatch_stage: ClassVar[int] = 0
 

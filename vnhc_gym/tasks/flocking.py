@@ -231,7 +231,8 @@ class FlockingAlignEnv(ConstraintEnv):
 
     ## Episode End
 
-    * Truncation: the time limit (``max_episode_steps=400`` when made with ``gym.make``, 20 s).
+    * Truncation: the time limit (``max_episode_steps=400`` when made with ``gym.make``: 20 s at the
+      default ``dt``, 40 s under ``coarse``).
     * Termination: only if the state becomes non-finite (``info["termination_reason"] ==
       "non_finite_state"``); the last finite observation is returned.
 

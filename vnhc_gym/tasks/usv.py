@@ -132,6 +132,7 @@ class USVTask(Task):
     phi_sf_scale = 1.0
     angles = (2,)  # theta
     uncertain = ("m", "I", "current_scale")
+    filtered_params = ("c_c1", "c_c2", "c_j11", "c_j12", "c_j21", "c_j22")  # the local current, read at the boat
     draw_stages = 3
     mismatch_stage = 1  # after the random current's amplitudes: the mismatch scales the drawn field
 
@@ -295,7 +296,8 @@ class USVStreamEnv(ConstraintEnv):
 
     ## Episode End
 
-    * Truncation: the time limit (``max_episode_steps=400`` with ``gym.make``, 20 s).
+    * Truncation: the time limit (``max_episode_steps=400`` with ``gym.make``: 20 s at the default
+      ``dt``, 40 s under ``coarse``).
     * Termination: non-finite state (``"non_finite_state"``), the boat leaving the charted
       square ``|x|, |y| <= domain`` (``"out_of_domain"``) or spinning faster than
       ``max_turn_rate`` (``"turn_rate_exceeded"``), in ``info["termination_reason"]``. On the

@@ -9,7 +9,7 @@ algorithm's RL Zoo file (``agents/hyperparams/<algo>.yml``), trains, and writes 
   steps counting 0, `vnhc_gym.evaluation.metrics`);
 * ``<stem>-final.zip``: the model at the end of training;
 * ``<stem>.json``: the sidecar, one per run: the run's configuration and hyperparameters, the package
-  version and code fingerprint, the learning curve (env steps, wall time, validation IQMs), the
+  version and code fingerprint, the learning curve (env steps, wall time, validation scores), the
   observation statistics of both models (``obs_rms`` of the best, ``final_obs_rms`` of the final),
   and the test evaluation.  [`load_agent`][vnhc_gym.training.load_agent] loads either model with it.
 

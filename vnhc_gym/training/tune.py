@@ -89,9 +89,11 @@ SPACES: dict[str, Callable[[Any], dict[str, Any]]] = {
     "ppo": _ppo, "residual_ppo": _ppo, "sac": _sac, "residual_sac": _residual_sac,
 }
 
-#: Classical baseline -> its search space (log-uniform gains; the observer's blend too).
+#: Classical baseline -> its search space (log-uniform gains; the law's variant, the plain law held
+#: over the control period or the sampled-data law; the observer's blend too).
 CLASSICAL_SPACES: dict[str, Callable[[Any], dict[str, Any]]] = {
-    "tuned_law": lambda t: {"gain": t.suggest_float("gain", 0.5, 200.0, log=True)},
+    "tuned_law": lambda t: {"gain": t.suggest_float("gain", 0.5, 200.0, log=True),
+                            "variant": t.suggest_categorical("variant", ["plain", "sampled"])},
     "observer": lambda t: {"gain": t.suggest_float("gain", 0.5, 200.0, log=True),
                            "alpha": t.suggest_float("alpha", 1e-3, 1.0, log=True)},
     "adaptive": lambda t: {"gain": t.suggest_float("gain", 0.5, 200.0, log=True)},

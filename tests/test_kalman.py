@@ -1,0 +1,109 @@
+"""The extended Kalman filter baseline: its covariance against the discrete Riccati equation on a
+linear system, its estimate against the raw observation under the scenario's own noise, and the
+plain law where there is no noise."""
+
+from __future__ import annotations
+
+import types
+
+import gymnasium as gym
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import sympy as sp
+from scipy.linalg import solve_discrete_are
+
+import vnhc_gym.tasks
+from vnhc_gym.baselines import GeometricController
+from vnhc_gym.baselines.kalman import KalmanController, correct, predict, process_noise
+from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint, derive_law
+from vnhc_gym.mechanics.printing import print_module
+
+SLED = "vnhc_gym/SledCruise-v1"
+
+
+def _oscillator(k: float) -> types.ModuleType:
+    x, xd = sp.symbols("x xd", real=True)
+    ks = sp.Symbol("k", positive=True)
+    system = MechanicalSystem(name="osc", q=(x,), qd=(xd,), mass_matrix=sp.eye(1), control_forces=sp.Matrix([1]),
+                              potential=ks * x**2 / 2, params={ks: k})
+    module = types.ModuleType("osc")
+    text = print_module(derive_law(system, VelocityConstraint(sp.Matrix([xd]))), "osc", "test")
+    exec(compile(text, "osc", "exec"), module.__dict__)  # noqa: S102 - our own printed text
+    return module
+
+
+def test_covariance_converges_to_the_discrete_riccati_solution() -> None:
+    """x'' = -k x, position measured with variance r: the filter's predicted covariance tends to the
+    solution of the discrete algebraic Riccati equation of A (RK4's step matrix, by hand), H, Q, R."""
+    k, dt, r, q = 4.0, 0.05, 0.02**2, 0.5
+    osc = _oscillator(k)
+    m = np.array([[0.0, 1.0], [-k, 0.0]]) * dt
+    a = np.eye(2) + m + m @ m / 2 + m @ m @ m / 6 + m @ m @ m @ m / 24  # RK4 on a linear system
+    h = np.array([[1.0, 0.0]])
+    q_mat = process_noise(1, dt, q)
+    x, cov = np.array([[0.3, -0.2]]), np.eye(2)[None] * 0.1
+    rng = np.random.default_rng(0)
+    with jax.enable_x64(True):
+        step = jax.jit(lambda x_, c_: predict(osc, dt, 1, (), x_, c_, jnp.asarray(osc.PARAM_DEFAULTS), jnp.zeros(1),
+                                              q_mat))
+        for _ in range(400):
+            pred, prior = (np.asarray(v)[None] for v in step(x[0], cov[0]))
+            z = np.array([[rng.normal(0.0, np.sqrt(r))]])
+            x, cov = correct(pred, prior, pred[:, :1], np.broadcast_to(h, (1, 1, 2)), z, r)
+    np.testing.assert_allclose(prior[0], solve_discrete_are(a.T, h.T, q_mat, np.array([[r]])), rtol=1e-8)
+
+
+def test_the_estimate_beats_the_raw_observation_under_the_scenarios_noise() -> None:
+    env = gym.make(SLED, scenario="noisy")
+    obs, info = env.reset(seed=5001)
+    task = env.unwrapped.task
+    ekf = KalmanController(env, gain=10.0, q=0.001)
+    raw, est = [], []
+    for t in range(200):
+        action, _ = ekf.predict(obs)
+        truth = task.controller_inputs(task.observation_of(info["state"][None], task.nominal[None]))[0][0]
+        if t >= 20:  # past the filter's start
+            raw.append(task.controller_inputs(obs[None].astype(np.float64))[0][0] - truth)
+            est.append(ekf._x[0] - truth)
+        ekf.applied(action)
+        obs, _, terminated, truncated, info = env.step(action)
+        assert not terminated
+    rms_raw, rms_est = (np.sqrt(np.mean(np.square(e), axis=0))[3:] for e in (raw, est))
+    assert np.all(rms_est < 0.5 * rms_raw), (rms_est, rms_raw)
+
+
+@pytest.mark.parametrize("env_id", [SLED, "vnhc_gym/CartPoleBalance-v1", "vnhc_gym/SpacecraftPoint-v1"])
+def test_without_noise_the_filter_is_the_plain_law(env_id: str) -> None:
+    env = gym.make(env_id)
+    obs, _ = env.reset(seed=3)
+    ekf, law = KalmanController(env, gain=5.0, q=0.01), GeometricController(env, gain=5.0)
+    for _ in range(30):
+        a, _ = ekf.predict(obs)
+        b, _ = law.predict(obs)
+        np.testing.assert_allclose(a, b, atol=1e-4)
+        ekf.applied(a)
+        obs, *_ = env.step(a)
+
+
+def test_a_task_without_a_printed_model_is_refused_by_name() -> None:
+    with pytest.raises(ValueError, match="flocking6"):  # the flock is printed for 4 agents only
+        KalmanController(gym.make("vnhc_gym/FlockingAlign-v1", n_agents=6))
+
+
+@pytest.mark.parametrize("name", sorted(vnhc_gym.tasks.shipped_tasks()))
+def test_observation_of_inverts_the_read_back(name: str) -> None:
+    """The filter's measurement model: the observation of the state read back from an observation is
+    that observation (every entry the controller's frame holds; the others are NaN)."""
+    env = gym.make(vnhc_gym.tasks.env_id(name))
+    obs, _ = env.reset(seed=2)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        obs, *_ = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+    task = env.unwrapped.task
+    states, params = task.controller_inputs(obs[None].astype(np.float64))
+    back = task.observation_of(states, params)[0]
+    seen = np.isfinite(back)
+    assert seen.sum() >= task.obs_dim - 2
+    np.testing.assert_allclose(back[seen], obs[seen], atol=1e-6)

@@ -1,0 +1,272 @@
+"""The geometric law on an extended Kalman filter's estimate: for noisy observations.
+
+[`KalmanController`][vnhc_gym.baselines.KalmanController] keeps, per episode, an estimate ``z`` of
+the controller model's state (and of the parameters the task lists in ``filtered_params``, such as
+the local current a boat reads from its observation) with its covariance ``P``:
+
+* **predict** with the nominal model and the force the environment actually applied: one control
+  period of RK4 (the map the environment integrates with), ``P- = A P A^T + Q`` with ``A`` the
+  exact Jacobian of that step, by forward-mode automatic differentiation of the printed JAX model
+  (`vnhc_gym.mechanics.functional`); the filtered parameters follow a random walk.  Where the
+  controller's frame moves with the system ([`recenter`][vnhc_gym.tasks.base.Task.recenter]: the
+  boat at the origin, the sled heading along x) the prediction and its covariance are carried into
+  the new frame;
+* **correct** with the observation itself: the measurement model is the task's own observation of
+  a state ([`observation_of`][vnhc_gym.tasks.base.Task.observation_of]), so every entry the agent
+  sees counts, the observed ``phi`` entries included; ``R = sigma^2 I`` with the environment's own
+  observation noise ``sigma`` (``obs_noise``, which it declares).  The numpy functions of the task
+  (the frame change, the observation) are differentiated by central differences.
+
+The process noise is white noise on the accelerations, ``Q = q^2 [[dt^3/3, dt^2/2], [dt^2/2, dt]]``
+per coordinate, and ``q_params^2 dt`` on each filtered parameter: both are tuned on validation
+episodes beside the law's gain (they stand for the model error and the kicks the filter cannot
+predict).  The law acts on the estimate.  Without observation noise the filter returns the observed
+state: the plain law.
+
+Why a filter of our own rather than filterpy or dynamax: it runs online inside a controller,
+batched over episodes, on a process model that is itself JAX code whose Jacobian JAX gives exactly;
+the update is the dozen lines of `correct`, which those libraries would only wrap.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vnhc_gym.baselines.geometric import DEFAULT_GAIN
+from vnhc_gym.baselines.observer import ObserverController
+from vnhc_gym.envs.config import check_number
+from vnhc_gym.mechanics import functional as F
+from vnhc_gym.mechanics import sampled_control
+from vnhc_gym.systems.printed import printed_for
+from vnhc_gym.tasks.base import Task
+
+__all__ = ["KalmanController", "correct", "predict", "process_noise"]
+
+Array = NDArray[np.float64]
+
+
+def predict(system: Any, dt: float, substeps: int, filtered: tuple[int, ...], z: Any, cov: Any, base: Any, u: Any,
+            q_mat: Any) -> tuple[Any, Any]:
+    """One episode's prediction (pure JAX; batched by vmap) of the state ``z = (x, theta)``: the
+    system's state ``x`` moves by ``F_dt(x, u)`` with the parameters ``base`` whose entries
+    ``filtered`` are ``theta``; ``theta`` stays (a random walk).  Returns ``z-`` and
+    ``A P A^T + Q`` with ``A = dz-/dz`` by forward-mode differentiation."""
+    dim = 2 * system.N
+    idx = jnp.asarray(filtered, dtype=jnp.int32)
+
+    def step(zz: Any) -> Any:
+        p = base.at[idx].set(zz[dim:]) if filtered else base
+        return jnp.concatenate([F.rk4_step(system, zz[:dim], p, u, dt, substeps), zz[dim:]])
+
+    a = jax.jacfwd(step)(z)
+    return step(z), a @ cov @ a.T + q_mat
+
+
+def _jacobian(f: Any, z: Array, h: float = 1e-6) -> Array:
+    """Central differences ``(B, m, k)`` of a batched numpy function ``f: (N, k) -> (N, m)`` at
+    ``z (B, k)``, in one call of ``f``."""
+    b, k = z.shape
+    bumped = np.repeat(z[:, None, :], 2 * k, axis=1)
+    idx = np.arange(k)
+    bumped[:, idx, idx] += h
+    bumped[:, k + idx, idx] -= h
+    out = f(bumped.reshape(-1, k)).reshape(b, 2 * k, -1)
+    return ((out[:, :k] - out[:, k:]) / (2 * h)).transpose(0, 2, 1)
+
+
+def process_noise(n: int, dt: float, q: float) -> Array:
+    """``Q`` of white acceleration noise of intensity ``q^2`` on each of ``n`` coordinates over ``dt``:
+    ``q^2 [[dt^3/3, dt^2/2], [dt^2/2, dt]]`` for each (position, velocity) pair, state order ``(q, qd)``."""
+    block = np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]) * q**2
+    out = np.zeros((2 * n, 2 * n))
+    for i in range(n):
+        out[np.ix_([i, n + i], [i, n + i])] = block
+    return out
+
+
+def correct(pred: Array, prior: Array, expected: Array, jac: Array, obs: Array, var: float) -> tuple[Array, Array]:
+    """The Kalman update of a batch: ``x = x- + K (z - h(x-))``, ``P = (I - K H) P- (I - K H)^T + K R K^T``
+    (Joseph's form: symmetric and positive however ``K`` rounds), ``K = P- H^T (H P- H^T + R)^-1``.
+
+    Parameters
+    ----------
+    pred, prior : ndarray, shapes ``(B, k)`` and ``(B, k, k)``
+        The prediction and its covariance.
+    expected, jac : ndarray, shapes ``(B, d)`` and ``(B, d, k)``
+        ``h(x-)`` and ``H``; an entry of ``expected`` that is NaN is not measured.
+    obs : ndarray, shape ``(B, d)``
+        The measurement ``z``.
+    var : float
+        ``R = var I``.
+    """
+    measured = np.isfinite(expected)
+    innovation = np.where(measured, obs - expected, 0.0)
+    jac = np.where(measured[:, :, None], jac, 0.0)
+    d, k = jac.shape[1:]
+    s = jac @ prior @ jac.transpose(0, 2, 1) + var * np.eye(d)
+    gain = np.linalg.solve(s, jac @ prior).transpose(0, 2, 1)  # P- H^T S^-1 (S and P- symmetric)
+    x = pred + np.einsum("bij,bj->bi", gain, innovation)
+    rest = np.eye(k) - gain @ jac
+    return x, rest @ prior @ rest.transpose(0, 2, 1) + var * gain @ gain.transpose(0, 2, 1)
+
+
+class KalmanController(ObserverController):
+    """The stabilising law on an extended Kalman filter's estimate (see the module docstring).
+
+    Parameters
+    ----------
+    env : gymnasium Env or VectorEnv
+        A vnhc_gym environment whose task's controller model is printed
+        (`vnhc_gym.systems.printed`).
+    gain : float or array_like, default 5
+    q : float, default 1.0
+        Standard deviation of the white acceleration noise of the process model (units of the
+        velocities per second per square-root second).
+    q_params : float, default 0.03
+        Standard deviation per square-root second of the random walk of the parameters the task
+        lists in ``filtered_params`` (the local current model a boat reads from its observation).
+    variant : {"plain", "sampled"}
+        The law on the estimate: ``u*`` held over the control period, or the sampled-data law (the
+        held control that makes ``phi`` after one period of the nominal step map equal
+        ``exp(-K dt) phi``; stable at gains where the plain law held over a period is not).
+
+    Notes
+    -----
+    The estimate of a batch row starts from its first observation, with the covariance that the
+    observation noise gives the state read back from it; ``predict(obs, episode_start=...)``
+    restarts rows where a new episode begins.
+    """
+
+    def __init__(self, env: Any, gain: ArrayLike = DEFAULT_GAIN, q: float = 1.0, q_params: float = 0.03,
+                 variant: str = "plain") -> None:
+        super().__init__(env, gain)
+        if variant not in ("plain", "sampled"):
+            raise ValueError(f"variant must be 'plain' or 'sampled', got {variant!r}")
+        self.variant = variant
+        self.q = check_number("q", q, low=0.0, high=1e6)
+        self.q_params = check_number("q_params", q_params, low=0.0, high=1e6)
+        self.system = printed_for(self.model)
+        if self.system is None:
+            raise ValueError(f"KalmanController needs the printed JAX model of {self.model.name!r} "
+                             f"(vnhc_gym.systems.printed); this task has none")
+        self.sigma = float(self.task.config.obs_noise)
+        self.name = "kalman"
+        names = list(self.model.param_names)
+        unknown = [p for p in self.task.filtered_params if p not in names]
+        if unknown:
+            raise ValueError(f"task {self.task.name!r}: filtered_params {unknown} are not parameters of "
+                             f"{self.model.name!r} {names}")
+        self._filtered = tuple(names.index(p) for p in self.task.filtered_params)
+        self._dim = 2 * self.model.n
+        k = len(self._filtered)
+        q_mat = np.zeros((self._dim + k, self._dim + k))
+        q_mat[:self._dim, :self._dim] = process_noise(self.model.n, self.dt, self.q)
+        q_mat[self._dim:, self._dim:] = np.eye(k) * self.q_params**2 * self.dt
+        self._q_mat = q_mat
+        self._cov: Array | None = None
+        self._base: Array | None = None  # the parameters the filter does not estimate (B, n_params)
+        step = partial(predict, self.system, float(self.dt), int(self.substeps), self._filtered)
+        self._predict = jax.jit(jax.vmap(step, in_axes=(0, 0, 0, 0, None)))
+
+    @staticmethod
+    def applies(task: Any) -> bool:
+        """Whether the filter can run on ``task``: its controller model is printed."""
+        return printed_for(task.controller_model()) is not None
+
+    def __repr__(self) -> str:
+        return (f"KalmanController({self.task.name!r}, gain={self.gain.tolist()}, q={self.q}, "
+                f"q_params={self.q_params}, variant={self.variant!r})")
+
+    # ------------------------------------------------------------------ the filter's state z = (x, theta)
+    def _read(self, obs: Array) -> tuple[Array, Array]:
+        """``z`` read back from observations, and the parameters."""
+        y, py = self.task.controller_inputs(obs)
+        return np.concatenate([y, py[:, list(self._filtered)]], axis=1), py
+
+    def _params(self, z: Array, base: Array) -> Array:
+        p = base.copy()
+        p[:, list(self._filtered)] = z[:, self._dim:]
+        return p
+
+    def _read_cov(self, obs: Array) -> Array:
+        """The covariance ``sigma^2 J J^T`` of ``z`` read back from an observation with independent
+        noise ``sigma`` on every entry."""
+        b, d = obs.shape
+        k = self._dim + len(self._filtered)
+        if self.sigma == 0.0:
+            return np.zeros((b, k, k))
+
+        def read(o: Array) -> Array:
+            z = self._read(o)[0]
+            return z
+
+        jac = _jacobian(read, obs)
+        for j in self.task.angles:  # a read-back angle near +-pi may wrap between the two sides
+            jac[:, j] = (jac[:, j] * 2e-6 + np.pi) % (2 * np.pi) - np.pi
+            jac[:, j] /= 2e-6
+        return self.sigma**2 * jac @ jac.transpose(0, 2, 1)
+
+    def _recenter(self, z: Array, cov: Array, base: Array) -> tuple[Array, Array, Array]:
+        """``z`` in the frame of the next read-back (`Task.recenter`), its covariance carried through
+        the change of frame's Jacobian, and the parameters."""
+        if type(self.task).recenter is Task.recenter:
+            return z, cov, base
+        b = z.shape[0]
+
+        def move(zz: Array) -> Array:
+            x, p = self.task.recenter(zz[:, :self._dim], self._params(zz, np.repeat(base, zz.shape[0] // b, axis=0)))
+            return np.concatenate([x, p[:, list(self._filtered)]], axis=1)
+
+        jac = _jacobian(move, z)
+        x, p = self.task.recenter(z[:, :self._dim], self._params(z, base))
+        return np.concatenate([x, p[:, list(self._filtered)]], axis=1), jac @ cov @ jac.transpose(0, 2, 1), p
+
+    def _correct(self, z: Array, prior: Array, base: Array, obs: Array) -> tuple[Array, Array]:
+        """The Kalman update with the observation itself as the measurement: ``h`` is the task's
+        [`observation_of`][vnhc_gym.tasks.base.Task.observation_of], ``H`` its Jacobian (central
+        differences of the task's numpy function), ``R = sigma^2 I``."""
+        b = z.shape[0]
+
+        def seen(zz: Array) -> Array:
+            return self.task.observation_of(zz[:, :self._dim], self._params(zz, np.repeat(base, zz.shape[0] // b, 0)))
+
+        var = max(self.sigma, 1e-6) ** 2  # a floor: with no noise the filter follows the observation
+        return correct(z, prior, seen(z), _jacobian(seen, z), obs, var)
+
+    def law(self, states: Array, params: Array) -> tuple[Array, NDArray[np.bool_]]:
+        """The law of the chosen ``variant`` on the estimate (``u = 0`` on flagged rows)."""
+        u, singular = super().law(states, params)
+        if self.variant == "sampled":
+            ok = ~np.asarray(singular)
+            if ok.any():
+                us, _ = sampled_control(self.model, states[ok], params[ok], self.dt, self.gain, self.substeps,
+                                        self.iters)
+                u[ok] = np.where(np.isfinite(us), us, u[ok])
+        return u, singular
+
+    def estimate(self, obs: Array) -> tuple[Array, Array]:
+        z_read, base = self._read(obs)
+        b = z_read.shape[0]
+        fresh_cov = self._read_cov(obs) + 1e-12 * np.eye(z_read.shape[1])
+        if self._x is None or self._x.shape[0] != b or self._u is None or self._fresh is None \
+                or self._cov is None or self._base is None:
+            self._x, self._cov, self._base = z_read.copy(), fresh_cov, base
+            self._u = np.zeros((b, self.act_dim))
+            self._fresh = np.zeros(b, dtype=bool)
+            return self._x[:, :self._dim], self._params(self._x, base)
+        with jax.enable_x64(True):  # scoped: the filter needs float64, the user's settings stay
+            pred, prior = self._predict(self._x, self._cov, self._base, self._u, self._q_mat)
+            pred, prior = np.array(pred, dtype=np.float64), np.array(prior, dtype=np.float64)
+        pred, prior, _ = self._recenter(pred, prior, self._base)
+        z, cov = self._correct(pred, prior, base, np.asarray(obs, dtype=np.float64))
+        bad = self._fresh | ~np.isfinite(z).all(axis=1) | ~np.isfinite(cov).all(axis=(1, 2))
+        z[bad], cov[bad] = z_read[bad], fresh_cov[bad]
+        self._x, self._cov, self._base = z, cov, base
+        self._fresh[:] = False
+        return z[:, :self._dim], self._params(z, base)
