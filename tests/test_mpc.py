@@ -56,7 +56,7 @@ def test_mpc_is_a_tunable_classical_baseline_and_refuses_bad_settings() -> None:
     env = gym.make("vnhc_gym/USVStream-v1")
     pol = make_classical("mpc", env, gain=10.0, horizon=4)
     assert isinstance(pol, MPCController) and pol.name == "mpc" and pol.horizon == 4
-    for kwargs, match in (({"horizon": 0}, "horizon"), ({"iters": 1.5}, "iters"), ({"fd_step": 0.5}, "fd_step"),
+    for kwargs, match in (({"horizon": 0}, "horizon"), ({"iters": 1.5}, "iters"),
                           ({"gain": -1.0}, "gain"), ({"limit_weight": -1.0}, "limit_weight"),
                           ({"limit_margin": 0.0}, "limit_margin")):
         with pytest.raises(ValueError, match=match):
@@ -81,3 +81,21 @@ def test_mpc_keeps_the_state_inside_a_limit_the_unpenalised_plan_leaves() -> Non
                     ends[weight] += info.get("termination_reason") == "turn_rate_exceeded"
                     break
     assert ends[0.0] >= 1 and ends[1e4] == 0
+
+
+def test_an_episodes_plan_does_not_depend_on_its_batch() -> None:
+    """Each episode is its own problem, warm-started from its own last plan: one episode's actions are
+    the same alone and as one row of a batch of 8 (the saturated sled, where the bound binds)."""
+    env_id = "vnhc_gym/SledCruise-v1"
+    seeds = [VALIDATION_SEED + i for i in range(8)]
+    vec = gym.make_vec(env_id, num_envs=8, vectorization_mode="vector_entry_point", scenario="saturated")
+    alone = gym.make(env_id, scenario="saturated")
+    batch_obs, _ = vec.reset(seed=seeds)
+    obs, _ = alone.reset(seed=seeds[3])
+    batched, single = MPCController(vec, gain=5.0, horizon=4), MPCController(alone, gain=5.0, horizon=4)
+    for _ in range(6):
+        a_batch, _ = batched.predict(batch_obs)
+        a_alone, _ = single.predict(obs)
+        np.testing.assert_array_equal(a_batch[3], a_alone)
+        batch_obs, *_ = vec.step(a_batch)
+        obs, *_ = alone.step(a_alone)

@@ -20,30 +20,61 @@ little worse but stays inside is the better one.  Where the bound does not bind,
 variant reaches the target exactly, so the plan is the law; where it binds, the plan trades the
 near term against the later steps and may start braking earlier than the clipped law.
 
-Why scipy, not CasADi: the prediction model is the package's own compiled step map (the same
-kernels the environment integrates, generated from each task's symbolic model), so nothing has to
-be derived a second time in another modelling language and the plan predicts exactly what the
-nominal environment does.  The problem is small and box-constrained (``horizon x m`` variables
-per row), which is what scipy's L-BFGS-B solves; its gradient is a forward difference computed
-for every variable of every row in one batched rollout of the kernels.  The solve time per step
-is kept (``solve_seconds``, ``n_solves``) so that it can be reported beside the score.
+Each episode's plan is its own problem, solved from the episode's own previous plan shifted by one
+period (the first step of an episode starts from the law's force held over the horizon), so an
+episode's actions never depend on which other episodes share its batch.
+
+Why scipy and JAX, not CasADi: the prediction model is the system printed from the task's own
+symbolic model as pure JAX functions (`vnhc_gym.systems.printed`, the same RK4 step map the
+environment integrates), so nothing has to be derived a second time in another modelling language,
+and JAX differentiates the whole rollout exactly.  The problem is small and box-constrained
+(``horizon x m`` variables), which is what scipy's L-BFGS-B solves.  The solve time per step is
+kept (``solve_seconds``, ``n_solves``) so that it can be reported beside the score.
 """
 
 from __future__ import annotations
 
 import time
+from functools import partial
 from typing import Any
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
+from vnhc_gym.mechanics import functional as F
+from vnhc_gym.systems.printed import printed_for
 
-__all__ = ["MPCController"]
+__all__ = ["MPCController", "plan_cost"]
 
 Array = NDArray[np.float64]
 #: The cost of a predicted trajectory that left the finite numbers (the optimiser backs away from it).
 _DIVERGED = 1e12
+
+
+def plan_cost(system: Any, dt: float, substeps: int, limit_index: tuple[int, ...], z: Any, x0: Any, p: Any,
+              ref: Any, bound: Any, scale: Any, limit_bound: Any, limit_weight: float, limit_margin: float) -> Any:
+    """The cost of one episode's plan ``z`` (``horizon x m`` normalised actions, flat) from ``x0``:
+    the squared distance of the predicted ``phi`` to the target decay ``ref`` (``(horizon, m)``),
+    plus the penalty on predicted states beyond ``limit_margin`` of their limits (pure JAX)."""
+    plans = z.reshape(ref.shape[0], -1)
+    idx = jnp.asarray(limit_index, dtype=jnp.int32)
+
+    def period(x: Any, inputs: Any) -> tuple[Any, Any]:
+        a, target = inputs
+        nxt = F.rk4_step(system, x, p, a * bound, dt, substeps)
+        err = (system.phi(nxt, p) - target) / scale
+        cost = jnp.sum(err * err)
+        if limit_index:
+            over = jnp.maximum(jnp.abs(nxt[idx]) / limit_bound - limit_margin, 0.0)
+            cost = cost + limit_weight * jnp.sum(over * over)
+        return nxt, cost
+
+    _, costs = jax.lax.scan(period, x0, (plans, ref))
+    total = jnp.sum(costs)
+    return jnp.where(jnp.isfinite(total), total, _DIVERGED)
 
 
 class MPCController(GeometricController):
@@ -58,9 +89,7 @@ class MPCController(GeometricController):
     horizon : int, default 8
         Control periods planned ahead (``N``).
     iters : int, default 30
-        Largest number of L-BFGS-B iterations per control step.
-    fd_step : float, default 1e-6
-        Step of the forward differences, in units of the normalised action.
+        Largest number of L-BFGS-B iterations per control step and episode.
     limit_weight : float, default 1e4
         Weight ``w`` of the state-limit penalty (0: ignore the limits).
     limit_margin : float, default 0.9
@@ -73,18 +102,16 @@ class MPCController(GeometricController):
     """
 
     def __init__(self, env: Any, gain: ArrayLike = DEFAULT_GAIN, horizon: int = 8, iters: int = 30,
-                 fd_step: float = 1e-6, limit_weight: float = 1e4, limit_margin: float = 0.9) -> None:
+                 limit_weight: float = 1e4, limit_margin: float = 0.9) -> None:
         super().__init__(env, gain=gain)
         for name, value in (("horizon", horizon), ("iters", iters)):
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-        if not (np.isfinite(fd_step) and 0 < fd_step < 1e-2):
-            raise ValueError(f"fd_step must be a number in (0, 0.01), got {fd_step!r}")
         if not (np.isfinite(limit_weight) and limit_weight >= 0):
             raise ValueError(f"limit_weight must be a finite number >= 0, got {limit_weight!r}")
         if not (np.isfinite(limit_margin) and 0 < limit_margin <= 1):
             raise ValueError(f"limit_margin must be a number in (0, 1], got {limit_margin!r}")
-        self.horizon, self.max_iters, self.fd_step = int(horizon), int(iters), float(fd_step)
+        self.horizon, self.max_iters = int(horizon), int(iters)
         self.limit_weight, self.limit_margin = float(limit_weight), float(limit_margin)
         # The limits index the environment's state; a controller model of other coordinates
         # (the boat's, relative to the water) has none to check.
@@ -96,57 +123,67 @@ class MPCController(GeometricController):
         self.bound = np.broadcast_to(np.asarray(self.force_bound, dtype=np.float64), (self.act_dim,)).copy()
         self.solve_seconds = 0.0
         self.n_solves = 0
+        system = printed_for(self.model)
+        if system is None:
+            raise ValueError(f"MPCController needs the printed JAX model of {self.model.name!r} "
+                             f"(vnhc_gym.systems.printed); this task has none")
+        cost = partial(plan_cost, system, float(self.dt), int(self.substeps), tuple(int(i) for i in self.limit_index))
+        self._value_and_grad = jax.jit(jax.value_and_grad(cost))
+        self._plans: Array | None = None  # each row's last plan (B, N, m), the next solve's start
+        self._fresh: NDArray[np.bool_] | None = None  # rows whose next plan starts from the law
+
+    @staticmethod
+    def applies(task: Any) -> bool:
+        """Whether the planner can run on ``task``: its controller model is printed."""
+        return printed_for(task.controller_model()) is not None
+
+    def reset_rows(self, rows: NDArray[np.bool_]) -> None:
+        if self._fresh is not None and self._fresh.shape == rows.shape:
+            self._fresh |= rows
+
+    def reset(self) -> None:
+        self._plans = None
 
     def __repr__(self) -> str:
         return f"MPCController({self.task.name!r}, gain={self.gain.tolist()}, horizon={self.horizon})"
 
-    def _costs(self, x0: Array, params: Array, ref: Array, plans: Array) -> Array:
-        """The cost of each plan: ``plans`` ``(R, N, m)`` from states ``x0`` ``(R, 2n)``."""
-        x = x0
-        cost = np.zeros(x0.shape[0])
-        for k in range(self.horizon):
-            x, _, _ = self.model.step(x, self.dt, u=plans[:, k] * self.bound, params=params, substeps=self.substeps)
-            err = (self.model.phi(x, params) - ref[:, k]) / self.scale
-            cost += np.sum(err * err, axis=1)
-            if self.limit_weight and self.limit_index.size:
-                over = np.maximum(np.abs(x[:, self.limit_index]) / self.limit_bound - self.limit_margin, 0.0)
-                cost += self.limit_weight * np.sum(over * over, axis=1)
-        return np.where(np.isfinite(cost), cost, _DIVERGED)
-
-    def plan(self, states: Array, params: Array, start: Array) -> Array:
-        """The optimal plans ``(B, N, m)`` (normalised actions) from ``states``, starting the search
-        at ``start``."""
+    def plan(self, state: Array, params: Array, start: Array) -> Array:
+        """One episode's optimal plan ``(N, m)`` (normalised actions) from ``state``, the search
+        started at ``start``."""
         from scipy.optimize import minimize
 
-        b, n, m = states.shape[0], self.horizon, self.act_dim
+        n = self.horizon
         decay = np.exp(-np.outer(np.arange(1, n + 1) * self.dt, self.gain))  # (N, m_c)
-        ref = decay[None] * self.model.phi(states, params)[:, None, :]  # (B, N, m_c)
-        # One batched rollout per evaluation: each row's plan, then each of its N m coordinates nudged.
-        width = 1 + n * m
-        nudge = np.concatenate([np.zeros((1, n * m)), self.fd_step * np.eye(n * m)]).reshape(width, n, m)
-        x0 = np.repeat(states, width, axis=0)
-        p = np.repeat(params, width, axis=0)
-        r = np.repeat(ref, width, axis=0)
+        ref = decay * self.model.phi(state[None], params[None])[0]
+        args = (state, params, ref, self.bound, self.scale, self.limit_bound, self.limit_weight, self.limit_margin)
 
         def cost_and_gradient(z: Array) -> tuple[float, Array]:
-            plans = (z.reshape(b, 1, n, m) + nudge[None]).reshape(b * width, n, m)
-            c = self._costs(x0, p, r, plans).reshape(b, width)
-            return float(c[:, 0].sum()), ((c[:, 1:] - c[:, :1]) / self.fd_step).ravel()
+            value, grad = self._value_and_grad(z, *args)
+            return float(value), np.asarray(grad, dtype=np.float64)
 
-        res = minimize(cost_and_gradient, np.clip(start, -1.0, 1.0).ravel(), jac=True, method="L-BFGS-B",
-                       bounds=[(-1.0, 1.0)] * (b * n * m), options={"maxiter": self.max_iters})
-        return np.clip(res.x.reshape(b, n, m), -1.0, 1.0)
+        with jax.enable_x64(True):  # scoped: the plan needs float64, the user's settings stay
+            res = minimize(cost_and_gradient, np.clip(start, -1.0, 1.0).ravel(), jac=True, method="L-BFGS-B",
+                           bounds=[(-1.0, 1.0)] * start.size, options={"maxiter": self.max_iters})
+        return np.clip(res.x.reshape(start.shape), -1.0, 1.0)
 
     def act(self, obs: Array) -> Array:
         t0 = time.perf_counter()
         states, params = self.task.controller_inputs(obs)
         u, singular = self.law(states, params)
-        start = np.clip(np.nan_to_num(u / self.bound), -1.0, 1.0)
-        a = start.copy()
+        law = np.clip(np.nan_to_num(u / self.bound), -1.0, 1.0)
+        b = states.shape[0]
+        if self._plans is None or self._plans.shape[0] != b or self._fresh is None:
+            self._plans = np.repeat(law[:, None, :], self.horizon, axis=1)
+            self._fresh = np.ones(b, dtype=bool)
+        # Each row's search starts from its own last plan shifted by one period (or from the law).
+        start = np.concatenate([self._plans[:, 1:], self._plans[:, -1:]], axis=1)
+        start[self._fresh] = law[self._fresh][:, None, :]
+        a = law.copy()
         ok = np.isfinite(states).all(axis=1) & np.isfinite(params).all(axis=1)
-        if ok.any():
-            plans = self.plan(states[ok], params[ok], np.repeat(start[ok][:, None, :], self.horizon, axis=1))
-            a[ok] = plans[:, 0]
+        for r in np.flatnonzero(ok):
+            self._plans[r] = self.plan(states[r], params[r], start[r])
+            a[r] = self._plans[r, 0]
+        self._fresh[:] = False
         self.last_singular = np.asarray(singular)
         self.last_saturated = np.any(np.abs(a) >= 1.0, axis=1)
         self.solve_seconds += time.perf_counter() - t0
