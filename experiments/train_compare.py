@@ -2,8 +2,9 @@
 the oracle and the learned agents, scored on held-out episodes.
 
 The grid (``GRID``): every registered task x 6 scenarios x {the oracle (the headroom reference), the
-k = 5 law, the tuned law, the observer law, the adaptive law, PPO, residual PPO on the cell's best
-classical baseline, PPO with a history of 4 observations}, and the planning baseline (MPC within
+k = 5 law, the tuned law (gain and variant), the safety-filtered law, the observer law, the
+Kalman-filter law, the adaptive law, PPO, residual PPO on the cell's best classical baseline, PPO
+with a history of 4 observations}, and the planning baseline (MPC within
 the force bound) on nominal and saturated; 5 training seeds on nominal and on the three scenarios
 where the law is weakest (noisy, mismatch, disturbance), 3 on the others; 2 M env steps per
 learned run.  ``--large`` is the bigger grid (10 seeds everywhere, 5 M steps).  It runs

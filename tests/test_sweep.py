@@ -27,7 +27,7 @@ from vnhc_gym import stats, sweep  # noqa: E402
 from vnhc_gym.baselines import GeometricController  # noqa: E402
 from vnhc_gym.baselines.tuning import CLASSICAL  # noqa: E402
 from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate  # noqa: E402
-from vnhc_gym.sweep import RunSpec, grid, report, run_sweep, status  # noqa: E402
+from vnhc_gym.sweep import RunSpec, grid, load_runs, report, run_sweep, status  # noqa: E402
 from vnhc_gym.tasks import env_id, shipped_tasks  # noqa: E402
 
 TASKS = shipped_tasks()  # the package's own tasks (the tutorial's is registered by conftest)
@@ -349,3 +349,12 @@ def test_ray_gives_the_local_numbers(swept: Any, tmp_path: Path) -> None:
     assert "not-a-number" in (tmp_path / "ray" / "runs" / f"{_bad_spec().stem}.error").read_text()
     for spec in subset:
         assert _test_metrics(tmp_path / "ray", spec) == _test_metrics(out, spec), spec.stem
+
+
+def test_a_baseline_that_cannot_act_in_a_cell_is_recorded_and_left_out(tmp_path: Path) -> None:
+    """The safety filter on the flock (no velocity limit): the run is done (not retried), holds no
+    test, and neither the report's runs nor a residual agent's choice of base see it."""
+    spec = RunSpec("safe_law", "flocking", "nominal", test_episodes=2, eval_episodes=2)
+    meta = sweep.run_one(spec, tmp_path)
+    assert meta["skipped"] and meta["test"] is None and status(spec, tmp_path) == "done"
+    assert load_runs(tmp_path) == [] and len(load_runs(tmp_path, skipped=True)) == 1

@@ -1,9 +1,10 @@
 """A grid of training-and-evaluation runs, on one machine or a Ray cluster, resumable, and its report.
 
 A run is one `RunSpec`: a learned agent (``ppo``, ``residual_ppo``, ``ppo_history``, ``sac``,
-``residual_sac``) trained and tested, a classical baseline (``law``, ``tuned_law``, ``observer``,
-``adaptive``, ``mpc``) tuned on validation episodes and tested, or the headroom reference ``oracle`` (the
-law in the loop on the true state and parameters), tuned and tested the same way.  Every choice
+``residual_sac``) trained and tested, a classical baseline (``law``, ``tuned_law``, ``safe_law``,
+``observer``, ``kalman``, ``adaptive``, ``mpc``) tuned on validation episodes and tested, or the
+headroom reference ``oracle`` (the sampled-data law on the true state and parameters), tuned and
+tested the same way.  Every choice
 (settings, checkpoints, the best classical baseline of a cell) and every table ranks on the
 ``score`` (the return over the fixed horizon per step, failed episodes' remaining steps counting
 0), higher is better.
@@ -44,7 +45,7 @@ __all__ = ["CLASSICAL_ALGOS", "LEARNED_ALGOS", "PLANNING_ALGOS", "REFERENCE_ALGO
 LEARNED_ALGOS = ("ppo", "residual_ppo", "ppo_history", "sac", "residual_sac")
 #: Learned agents that correct a classical base (the cell's best classical baseline).
 RESIDUAL_ALGOS = ("residual_ppo", "residual_sac")
-CLASSICAL_ALGOS = ("law", "tuned_law", "observer", "adaptive", "mpc")
+CLASSICAL_ALGOS = ("law", "tuned_law", "safe_law", "observer", "kalman", "adaptive", "mpc")
 #: Classical baselines that plan (model-predictive control): fielded as they are, never a residual base.
 PLANNING_ALGOS = ("mpc",)
 REFERENCE_ALGOS = ("oracle",)
@@ -157,6 +158,13 @@ def run_one(spec: RunSpec, out: str | Path, threads: int = 1, packages: Sequence
         from vnhc_gym.evaluation import TEST_SEED
 
         best, table = tune(spec.algo, env_id, spec.scenario, n_episodes=spec.eval_episodes)
+        if not table:  # the baseline cannot act in this cell (a safety filter without velocity limits)
+            meta = {"name": spec.stem, "algo": spec.algo, "sweep_algo": spec.algo, "env_id": env_id,
+                    "scenario": spec.scenario, "skipped": f"{spec.algo} cannot act on {env_id}", "test": None,
+                    "version": vnhc_gym.__version__, "code": code_fingerprint(), "spec": asdict(spec),
+                    "run_wall": time.perf_counter() - t0}
+            _atomic_json(runs / f"{spec.stem}.json", meta)
+            return meta
         built: list[Any] = []
         test = evaluate_classical(spec.algo, best, env_id, spec.scenario, spec.test_episodes, TEST_SEED, built=built)
         meta = {"name": spec.stem, "algo": spec.algo, "sweep_algo": spec.algo, "env_id": env_id,
@@ -183,7 +191,7 @@ def _best_classical(spec: RunSpec, out: str | Path, env_id: str) -> tuple[str, d
             for a in CLASSICAL_ALGOS if a not in PLANNING_ALGOS]
     found = [Path(out) / "runs" / f"{c.stem}.json" for c in cell]
     if all(f.exists() for f in found):
-        runs = [json.loads(f.read_text()) for f in found]
+        runs = [r for r in (json.loads(f.read_text()) for f in found) if not r.get("skipped")]
         best = max(runs, key=lambda r: r["validation_score"])
         return str(best["algo"]), dict(best["settings"])
     from vnhc_gym.baselines.tuning import tune
@@ -191,7 +199,8 @@ def _best_classical(spec: RunSpec, out: str | Path, env_id: str) -> tuple[str, d
     scored = []
     for c in cell:
         settings, table = tune(c.algo, env_id, spec.scenario, n_episodes=spec.eval_episodes)
-        scored.append((max(row["score"] for row in table), c.algo, settings))
+        if table:  # (empty: the baseline cannot act in this cell)
+            scored.append((max(row["score"] for row in table), c.algo, settings))
     _, name, settings = max(scored, key=lambda t: t[0])
     return name, settings
 
@@ -302,9 +311,11 @@ def _run_ray(todo: list[RunSpec], out: str, threads: int, address: str | None, r
 
 
 # --------------------------------------------------------------------------- report
-def load_runs(out: str | Path) -> list[dict[str, Any]]:
-    """Every finished run's sidecar under ``out/runs``."""
-    return [json.loads(p.read_text()) for p in sorted((Path(out) / "runs").glob("*.json"))]
+def load_runs(out: str | Path, *, skipped: bool = False) -> list[dict[str, Any]]:
+    """Every finished run's sidecar under ``out/runs`` (with ``skipped``, also the records of baselines
+    that cannot act in their cell, which hold no test)."""
+    runs = [json.loads(p.read_text()) for p in sorted((Path(out) / "runs").glob("*.json"))]
+    return runs if skipped else [r for r in runs if not r.get("skipped")]
 
 
 def save_records(out: str | Path, path: str | Path) -> int:
@@ -313,7 +324,7 @@ def save_records(out: str | Path, path: str | Path) -> int:
     settings), small enough to publish beside it.  Returns the number of records."""
     import gzip
 
-    runs = load_runs(out)
+    runs = load_runs(out, skipped=True)
     with gzip.open(path, "wt", encoding="utf-8") as fh:
         for r in runs:
             fh.write(json.dumps(r, sort_keys=True) + "\n")
@@ -668,6 +679,7 @@ def _verdict_summary(verdicts: list[dict[str, Any]]) -> list[str]:
 _STYLE: dict[str, dict[str, Any]] = {
     "law": {"color": "black", "ls": "--"}, "tuned_law": {"color": "tab:purple", "ls": "--"},
     "observer": {"color": "tab:brown", "ls": ":"}, "adaptive": {"color": "tab:gray", "ls": "-."},
+    "kalman": {"color": "tab:pink", "ls": ":"}, "safe_law": {"color": "darkviolet", "ls": "-."},
     "oracle": {"color": "gold", "ls": "-"}, "mpc": {"color": "tab:cyan", "ls": "--"},
     "ppo": {"color": "tab:blue"}, "ppo_history": {"color": "tab:orange"}, "residual_ppo": {"color": "tab:green"},
     "sac": {"color": "tab:red"}, "residual_sac": {"color": "tab:olive"},
