@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vnhc_gym.baselines.policy import Policy, spaces_of, task_of
+from vnhc_gym.baselines.policy import Policy, checked_task_of
 from vnhc_gym.mechanics import sampled_control
 
 __all__ = ["DEFAULT_GAIN", "GeometricController", "StatefulLaw"]
@@ -56,11 +56,7 @@ class GeometricController(Policy):
     def __init__(self, env: Any, gain: ArrayLike = DEFAULT_GAIN, variant: str = "plain", *, iters: int = 4) -> None:
         if variant not in ("plain", "sampled"):
             raise ValueError(f"variant must be 'plain' or 'sampled', got {variant!r}")
-        task = task_of(env)
-        obs_space, act_space = spaces_of(env)
-        if obs_space.shape != (task.obs_dim,) or act_space.shape != (task.act_dim,):
-            raise ValueError(f"the environment's spaces {obs_space.shape}, {act_space.shape} are not its task's "
-                             f"({task.obs_dim},), ({task.act_dim},) (a wrapper changed them?)")
+        task = checked_task_of(env)
         self.task = task
         self.model = task.controller_model()
         self.obs_dim = task.obs_dim
@@ -109,13 +105,18 @@ class GeometricController(Policy):
         o, _ = self.check_obs(obs)
         states, params = self.task.controller_inputs(o)
         u, singular = self.law(states, params)
+        return self.held(u, singular, states, params), np.asarray(singular)
+
+    def held(self, u: Array, singular: NDArray[np.bool_], states: Array, params: Array) -> Array:
+        """The force to hold over the control period: ``u`` (the law) for the plain variant; for the
+        sampled one, the sampled-data law from ``u`` where it converges (``u`` elsewhere)."""
         if self.variant == "sampled":
             ok = ~np.asarray(singular)
             if ok.any():
                 us, _ = sampled_control(self.model, states[ok], params[ok], self.dt, self.gain, self.substeps,
                                         self.iters)
                 u[ok] = np.where(np.isfinite(us), us, u[ok])
-        return u, np.asarray(singular)
+        return u
 
     def act(self, obs: Array) -> Array:
         u, singular = self.force(obs)

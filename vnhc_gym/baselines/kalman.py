@@ -42,7 +42,6 @@ from vnhc_gym.baselines.geometric import DEFAULT_GAIN
 from vnhc_gym.baselines.observer import ObserverController
 from vnhc_gym.envs.config import check_number
 from vnhc_gym.mechanics import functional as F
-from vnhc_gym.mechanics import sampled_control
 from vnhc_gym.systems.printed import printed_for
 from vnhc_gym.tasks.base import Task
 
@@ -242,13 +241,7 @@ class KalmanController(ObserverController):
     def law(self, states: Array, params: Array) -> tuple[Array, NDArray[np.bool_]]:
         """The law of the chosen ``variant`` on the estimate (``u = 0`` on flagged rows)."""
         u, singular = super().law(states, params)
-        if self.variant == "sampled":
-            ok = ~np.asarray(singular)
-            if ok.any():
-                us, _ = sampled_control(self.model, states[ok], params[ok], self.dt, self.gain, self.substeps,
-                                        self.iters)
-                u[ok] = np.where(np.isfinite(us), us, u[ok])
-        return u, singular
+        return self.held(u, singular, states, params), singular
 
     def estimate(self, obs: Array) -> tuple[Array, Array]:
         z_read, base = self._read(obs)

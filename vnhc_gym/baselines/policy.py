@@ -39,6 +39,17 @@ def spaces_of(env: Any) -> tuple[gym.Space, gym.Space]:
     return env.observation_space, env.action_space
 
 
+def checked_task_of(env: Any) -> Any:
+    """`task_of` for a controller that reads the task's observations and writes its actions:
+    ``ValueError`` if a wrapper changed the environment's spaces from the task's."""
+    task = task_of(env)
+    obs_space, act_space = spaces_of(env)
+    if obs_space.shape != (task.obs_dim,) or act_space.shape != (task.act_dim,):
+        raise ValueError(f"the environment's spaces {obs_space.shape}, {act_space.shape} are not its task's "
+                         f"({task.obs_dim},), ({task.act_dim},) (a wrapper changed them?)")
+    return task
+
+
 class Policy:
     """A policy with Stable-Baselines3's ``predict`` interface, on one observation or a batch.
 

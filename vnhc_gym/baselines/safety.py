@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
-from vnhc_gym.baselines.policy import Policy, spaces_of, task_of
+from vnhc_gym.baselines.policy import Policy, checked_task_of
 from vnhc_gym.envs.config import check_number
 
 __all__ = ["SafeLaw", "SafetyFilter", "project_box", "solve_qp", "velocity_limits"]
@@ -195,11 +195,7 @@ class SafetyFilter(Policy):
             raise ValueError(f"margin must be in [0, 1), got {margin!r}")
         self.margin = margin
         self.rate = check_number("rate", rate, low=0.0, low_open=True, high=1e9)
-        task = task_of(env)
-        obs_space, act_space = spaces_of(env)
-        if obs_space.shape != (task.obs_dim,) or act_space.shape != (task.act_dim,):
-            raise ValueError(f"the environment's spaces {obs_space.shape}, {act_space.shape} are not its task's "
-                             f"({task.obs_dim},), ({task.act_dim},) (a wrapper changed them?)")
+        task = checked_task_of(env)
         self.base = base
         self.task = task
         self.model = task.controller_model()
