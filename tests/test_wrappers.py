@@ -228,14 +228,17 @@ def test_vector_wrapper_equals_the_base_driven_by_hand(env: str, base: str, mode
         w.close()
 
 
+@pytest.mark.parametrize("variant", ["plain", "sampled"])
 @pytest.mark.parametrize("env", ENVS, ids=_short)
-def test_vector_observe_base_and_final_observations(env: str) -> None:
-    """SAME_STEP: the returned observation and every ``final_obs`` get the law's action appended."""
+def test_vector_observe_base_and_final_observations(env: str, variant: str) -> None:
+    """SAME_STEP: the returned observation and every ``final_obs`` get the base law's action appended,
+    of the base's own variant."""
     n = 4
     kw = {"autoreset_mode": AutoresetMode.SAME_STEP, "max_episode_steps": 5}
-    w = ResidualVectorAction(_vec(env, n, **kw), observe_base=True)
+    w = ResidualVectorAction(_vec(env, n, **kw), base="tuned_law", gain=5.0, observe_base=True,
+                             base_settings={"variant": variant})
     plain = _vec(env, n, **kw)
-    law = GeometricController(plain)
+    law = GeometricController(plain, variant=variant)
     d, m = plain.single_observation_space.shape[0], plain.single_action_space.shape[0]
     assert w.single_observation_space.shape == (d + m,)
     assert w.observation_space.shape == (n, d + m)

@@ -185,16 +185,18 @@ class ResidualVectorAction(VectorWrapper):
         """The last observations of finished episodes (``SAME_STEP``), with a base action appended.
 
         They only serve to bootstrap the value at a time limit, so the base action there is the
-        plain law's, which keeps no state: asking a stateful base would advance its estimate of the
-        new episode.
+        law's from the observation alone, of the base's variant (plain or sampled-data), which keeps
+        no state: asking a stateful base would advance its estimate of the new episode.
         """
         from vnhc_gym.baselines import GeometricController
 
         rows = np.flatnonzero(info["_final_obs"])
         if rows.size == 0:
             return
-        law = self.__dict__.setdefault("_final_law", GeometricController(self.env, gain=getattr(self.base, "gain",
-                                                                                              DEFAULT_GAIN)))
+        law = self.__dict__.get("_final_law")
+        if law is None:
+            law = self._final_law = GeometricController(self.env, gain=getattr(self.base, "gain", DEFAULT_GAIN),
+                                                        variant=getattr(self.base, "variant", "plain"))
         obs = np.stack([info["final_obs"][i] for i in rows])
         a, _ = law.predict(obs)
         final = info["final_obs"].copy()
