@@ -372,8 +372,11 @@ def test_the_planning_baseline_reports_its_solve_time_and_is_never_a_residual_ba
     rows = {r["algo"]: r for r in _report(tmp_path, sides)["rows"]}
     assert rows["law"]["best_classical"] == "mpc" and rows["mpc"]["solve_ms_per_step"] == pytest.approx(25.0)
     assert "mpc (best) (25 ms/step)" in (tmp_path / "report" / "comparison.md").read_text()
-    base, settings = sweep._best_classical(RunSpec("residual_ppo", "usv", "nominal"), tmp_path, "vnhc_gym/USVStream-v1")
+    spec = RunSpec("residual_ppo", "usv", "nominal", bases=("law", "tuned_law", "observer", "adaptive"))
+    base, settings = sweep._best_classical(spec, tmp_path, "vnhc_gym/USVStream-v1")
     assert base == "tuned_law" and settings == {"gain": 5.0}
+    with pytest.raises(ValueError, match="bases"):
+        RunSpec("residual_ppo", "usv", "nominal", bases=("mpc",))
 
 
 def test_a_higher_mean_without_the_pairwise_majority_is_explained() -> None:

@@ -358,3 +358,25 @@ def test_a_baseline_that_cannot_act_in_a_cell_is_recorded_and_left_out(tmp_path:
     meta = sweep.run_one(spec, tmp_path)
     assert meta["skipped"] and meta["test"] is None and status(spec, tmp_path) == "done"
     assert load_runs(tmp_path) == [] and len(load_runs(tmp_path, skipped=True)) == 1
+
+
+def test_a_residual_agents_bases_are_its_grids_classical_baselines() -> None:
+    specs = grid(["usv"], ["nominal"], ["law", "tuned_law", "mpc", "ppo", "residual_ppo"], [0], 10)
+    by_algo = {s.algo: s for s in specs}
+    assert by_algo["residual_ppo"].bases == ("law", "tuned_law") and by_algo["ppo"].bases == ()
+    with pytest.raises(ValueError, match="bases"):
+        RunSpec("residual_ppo", "usv", bases=("mpc",))
+
+
+def test_the_published_runs_keep_their_names() -> None:
+    """Runs that name no bases keep the names (and so the records) they were published under."""
+    import gzip
+
+    path = Path(__file__).resolve().parent.parent / "docs" / "results" / "train_compare" / "runs.jsonl.gz"
+    with gzip.open(path, "rt") as fh:
+        records = [json.loads(line) for line in fh]
+    assert len(records) > 100
+    for r in records:
+        spec = dict(r["spec"])
+        spec["overrides"] = tuple(tuple(kv) for kv in spec.get("overrides", ()))
+        assert RunSpec(**spec).stem == r["name"], r["name"]

@@ -67,10 +67,17 @@ class RunSpec:
     overrides: tuple[tuple[str, Any], ...] = ()  #: hyperparameter overrides, as sorted pairs
     test_episodes: int = 20
     eval_episodes: int = 10
+    #: A residual agent's candidate bases (its cell's best of them is its base); empty: every
+    #: classical baseline but the planner.
+    bases: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.algo not in ALL_ALGOS:
             raise ValueError(f"algo must be one of {list(ALL_ALGOS)}, got {self.algo!r}")
+        object.__setattr__(self, "bases", tuple(self.bases))
+        bad = [b for b in self.bases if b not in CLASSICAL_ALGOS or b in PLANNING_ALGOS]
+        if bad:
+            raise ValueError(f"bases must be classical baselines other than the planner, got {bad}")
 
     @property
     def learned(self) -> bool:
@@ -79,6 +86,8 @@ class RunSpec:
     def key(self) -> str:
         """A hash of the configuration (classical runs ignore the budget)."""
         d = asdict(self)
+        if not self.bases:
+            d.pop("bases")  # (the default: keys of runs that name no bases stay as they were)
         if not self.learned:
             d.pop("n_timesteps")
             d.pop("seed")
@@ -93,8 +102,11 @@ class RunSpec:
 def grid(envs: Sequence[str], scenarios: Sequence[str], algos: Sequence[str], seeds: Sequence[int],
          n_timesteps: int, *, overrides: dict[str, Any] | None = None, test_episodes: int = 20,
          eval_episodes: int = 10, seeds_by_scenario: dict[str, Sequence[int]] | None = None) -> list[RunSpec]:
-    """Every combination; classical baselines get one run per cell (they are deterministic)."""
+    """Every combination; classical baselines get one run per cell (they are deterministic).  A
+    residual agent's base is the best of the grid's own classical baselines of its cell (all of them
+    but the planner when the grid has none)."""
     ov = tuple(sorted((overrides or {}).items()))
+    bases = tuple(a for a in algos if a in CLASSICAL_ALGOS and a not in PLANNING_ALGOS)
     out = []
     for env in envs:
         for scenario in scenarios:
@@ -102,7 +114,7 @@ def grid(envs: Sequence[str], scenarios: Sequence[str], algos: Sequence[str], se
             for algo in algos:
                 for seed in (cell_seeds if algo in LEARNED_ALGOS else cell_seeds[:1]):
                     out.append(RunSpec(algo, env, scenario, int(seed), int(n_timesteps), ov, test_episodes,
-                                       eval_episodes))
+                                       eval_episodes, bases if algo in RESIDUAL_ALGOS else ()))
     return out
 
 
@@ -182,13 +194,15 @@ def run_one(spec: RunSpec, out: str | Path, threads: int = 1, packages: Sequence
 
 
 def _best_classical(spec: RunSpec, out: str | Path, env_id: str) -> tuple[str, dict[str, Any]]:
-    """The best classical baseline of the run's cell (highest validation score) and its settings: the
+    """The best of the run's candidate bases (``spec.bases``) in its cell (highest validation score)
+    and its settings: the
     base of a residual agent, which then starts from the strongest model-based controller of the cell.
     Read from the cell's finished classical runs when they are all there, else tuned here (on
     validation episodes, as they would be).  The planning baseline is never a base: it plans at
     every step of every training environment, which would make training hundreds of times slower."""
+    candidates = spec.bases or tuple(a for a in CLASSICAL_ALGOS if a not in PLANNING_ALGOS)
     cell = [RunSpec(a, spec.env, spec.scenario, test_episodes=spec.test_episodes, eval_episodes=spec.eval_episodes)
-            for a in CLASSICAL_ALGOS if a not in PLANNING_ALGOS]
+            for a in candidates]
     found = [Path(out) / "runs" / f"{c.stem}.json" for c in cell]
     if all(f.exists() for f in found):
         runs = [r for r in (json.loads(f.read_text()) for f in found) if not r.get("skipped")]

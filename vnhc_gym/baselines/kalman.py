@@ -30,7 +30,7 @@ the update is the dozen lines of `correct`, which those libraries would only wra
 
 from __future__ import annotations
 
-from functools import partial
+from functools import cache, partial
 from typing import Any
 
 import jax
@@ -65,6 +65,13 @@ def predict(system: Any, dt: float, substeps: int, filtered: tuple[int, ...], z:
 
     a = jax.jacfwd(step)(z)
     return step(z), a @ cov @ a.T + q_mat
+
+
+@cache
+def _batched_predict(system: Any, dt: float, substeps: int, filtered: tuple[int, ...]) -> Any:
+    """`predict` compiled for a batch, once per system and step: every controller of the same task
+    and step shares it (JAX compiles a jitted function once per function object)."""
+    return jax.jit(jax.vmap(partial(predict, system, dt, substeps, filtered), in_axes=(0, 0, 0, 0, None)))
 
 
 def _jacobian(f: Any, z: Array, h: float = 1e-6) -> Array:
@@ -170,8 +177,7 @@ class KalmanController(ObserverController):
         self._q_mat = q_mat
         self._cov: Array | None = None
         self._base: Array | None = None  # the parameters the filter does not estimate (B, n_params)
-        step = partial(predict, self.system, float(self.dt), int(self.substeps), self._filtered)
-        self._predict = jax.jit(jax.vmap(step, in_axes=(0, 0, 0, 0, None)))
+        self._predict = _batched_predict(self.system, float(self.dt), int(self.substeps), self._filtered)
 
     @staticmethod
     def applies(task: Any) -> bool:

@@ -35,7 +35,7 @@ kept (``solve_seconds``, ``n_solves``) so that it can be reported beside the sco
 from __future__ import annotations
 
 import time
-from functools import partial
+from functools import cache, partial
 from typing import Any
 
 import jax
@@ -75,6 +75,13 @@ def plan_cost(system: Any, dt: float, substeps: int, limit_index: tuple[int, ...
     _, costs = jax.lax.scan(period, x0, (plans, ref))
     total = jnp.sum(costs)
     return jnp.where(jnp.isfinite(total), total, _DIVERGED)
+
+
+@cache
+def _cost_and_gradient(system: Any, dt: float, substeps: int, limit_index: tuple[int, ...]) -> Any:
+    """`plan_cost` and its gradient compiled once per system, step and limits: every planner of the
+    same task and step shares them (JAX compiles a jitted function once per function object)."""
+    return jax.jit(jax.value_and_grad(partial(plan_cost, system, dt, substeps, limit_index)))
 
 
 class MPCController(GeometricController):
@@ -127,8 +134,8 @@ class MPCController(GeometricController):
         if system is None:
             raise ValueError(f"MPCController needs the printed JAX model of {self.model.name!r} "
                              f"(vnhc_gym.systems.printed); this task has none")
-        cost = partial(plan_cost, system, float(self.dt), int(self.substeps), tuple(int(i) for i in self.limit_index))
-        self._value_and_grad = jax.jit(jax.value_and_grad(cost))
+        self._value_and_grad = _cost_and_gradient(system, float(self.dt), int(self.substeps),
+                                                  tuple(int(i) for i in self.limit_index))
         self._plans: Array | None = None  # each row's last plan (B, N, m), the next solve's start
         self._fresh: NDArray[np.bool_] | None = None  # rows whose next plan starts from the law
 
