@@ -259,6 +259,77 @@ class Task:
             raise ValueError(f"{where}: observe leaves observation entries {np.flatnonzero(obs == mark).tolist()} "
                              f"unwritten, but obs_dim is {self.obs_dim}")
 
+    # ------------------------------------------------------------------ the pure-function environment
+    def functional(self, feedback: str = "open", gains: Any = 1.0, max_steps: int = 400) -> Any:
+        """This configured task as a [`FunctionalEnv`][vnhc_gym.envs.functional.FunctionalEnv] (gymnax's
+        interface) and its parameters: the task module's pure ``initial``, ``observation`` and optional
+        ``terminations``, ``task_params`` and ``scale_free``, on the task's printed system
+        ([`jax_system`][vnhc_gym.tasks.base.Task.jax_system]); a function with a keyword parameter
+        ``system`` is given it (a task whose system depends on its options, the USV's current).
+
+        Parameters
+        ----------
+        feedback : {"open", "continuous", "sampled"}
+            The stabilising law inside the integrator (see `FunctionalEnv`).
+        gains : float or array_like
+            The in-loop law's gains.
+        max_steps : int
+            The time limit of `FunctionalEnv.step`'s automatic reset (the registry's 400).
+        """
+        import inspect
+        import sys
+        from functools import partial
+
+        import jax.numpy as jnp
+
+        from vnhc_gym.envs.functional import EnvParams, FunctionalEnv, TaskFunctions
+
+        module = sys.modules[type(self).__module__]
+        where = f"task {self.name!r} ({type(self).__module__})"
+        missing = [f for f in ("initial", "observation") if not callable(getattr(module, f, None))]
+        if missing:
+            raise ValueError(f"{where}: the module defines no pure {' or '.join(missing)} function")
+        system = self.jax_system()
+        c = self.config
+        names = self.model.param_names
+        n_gains = 2 * system.M if system.HOLONOMIC else system.M
+        k = np.broadcast_to(np.asarray(gains, dtype=np.float64), (n_gains,))
+        def bound(name: str) -> Any:
+            """The module's function ``name`` (or None), given the printed system if it asks for it."""
+            fn = getattr(module, name, None)
+            if fn is not None and "system" in inspect.signature(fn).parameters:
+                fn = partial(fn, system=system)
+            return fn
+
+        fns = TaskFunctions(
+            name=self.name, system=system, initial=bound("initial"), observation=bound("observation"),
+            terminations=bound("terminations"), task_params=bound("task_params"), scale_free=bound("scale_free"),
+            reasons=tuple(str(r) for r in self.all_reasons[1:]),
+            limits=tuple((r, int(i)) for r, i, _ in self.limits),
+            impulse_mask=tuple(float(w) for w in self.impulse_mask),
+            uncertain=tuple(n in self.uncertain for n in names), obs_dim=int(self.obs_dim))
+        f = jnp.asarray
+        params = EnvParams(
+            nominal=f(self.nominal), force_bound=f(self.force_bound), dt=f(c.dt), param_mismatch=f(c.param_mismatch),
+            obs_noise=f(c.obs_noise), obs_clip=f(c.obs_clip), impulse_prob=f(c.impulse_prob),
+            impulse_scale=f(self.default_impulse_scale if c.impulse_scale is None else c.impulse_scale),
+            reward_sigma=f(self.reward_sigma if c.reward_sigma is None else c.reward_sigma),
+            phi_scale=f(c.phi_scale), phi_sf_scale=f(float(self.phi_sf_scale)), action_cost=f(c.action_cost),
+            reward_clip=f(c.reward_clip), gains=f(k), limit_bounds=f(np.array([b for _, _, b in self.limits])),
+            args=self.args, max_steps_in_episode=int(max_steps))
+        env = FunctionalEnv(task=fns, default_params=params, substeps=int(c.substeps), reward=c.reward,
+                            feedback=feedback)
+        return env, params
+
+    def jax_system(self) -> Any:
+        """The printed JAX module of the environment's system (`vnhc_gym.systems.printed`)."""
+        from vnhc_gym.systems.printed import printed_for
+
+        system = printed_for(self.model)
+        if system is None:
+            raise ValueError(f"task {self.name!r}: no printed system for {getattr(self.model, 'recipe', None)!r}")
+        return system
+
     # ------------------------------------------------------------------ what a controller reads
     def controller_model(self) -> ConstrainedSystem:
         """The model a model-based controller uses (default: the environment's own system)."""

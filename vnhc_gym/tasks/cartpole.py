@@ -6,6 +6,8 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
@@ -53,6 +55,23 @@ def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs
     obs[4] = state[3] / OBS_VEL_SCALE
     obs[5] = phi[0] / OBS_VEL_SCALE
     return 0
+
+
+def initial(key: jax.Array, p: jax.Array, args: Args) -> jax.Array:
+    """The cart near the middle of the track, the pole leaning up to 0.3 rad, both moving, with
+    ``|phi| >= 0.2`` rad/s (off the constraint by construction)."""
+    k_u, k_sign = jax.random.split(key)
+    x, theta, xd, off = jax.random.uniform(k_u, (4,), minval=jnp.array([-1.0, -0.3, -0.5, 0.2]),
+                                           maxval=jnp.array([1.0, 0.3, 0.5, 1.0]))
+    lam, mu, nu = p[5], p[6], p[7]
+    thetad = -(lam * jnp.sin(theta) + mu * xd + nu * x) + off * jax.random.rademacher(k_sign, (), dtype=x.dtype)
+    return jnp.stack([x, theta, xd, thetad])
+
+
+def observation(s: jax.Array, phi: jax.Array, p: jax.Array, args: Args) -> jax.Array:
+    """Cart position and speed, the pole's angle as (cos, sin), its rate and ``phi``."""
+    return jnp.stack([s[0] / OBS_POS_SCALE, s[2] / OBS_VEL_SCALE, jnp.cos(s[1]), jnp.sin(s[1]),
+                      s[3] / OBS_VEL_SCALE, phi[0] / OBS_VEL_SCALE])
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cache
 from typing import Any, NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
@@ -22,6 +25,10 @@ __all__ = ["FlockingAlignEnv", "FlockingOptions", "FlockingTask", "LOG_SPEED_SCA
 
 #: The leader's speed enters the observation as ``log(|v_N|) / LOG_SPEED_SCALE``.
 LOG_SPEED_SCALE = 5.0
+#: ``phi~^b = phi^b / (|v_N| PHI_SF_SCALE)`` (m/s); `FlockingTask.phi_sf_scale`.
+PHI_SF_SCALE = 1.0
+#: The smallest leader speed the observation divides by (a leader at rest would give 0 / 0).
+MIN_SPEED = 1e-12
 
 
 def flocking_obs_dim(n_agents: int) -> int:
@@ -79,7 +86,7 @@ def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs
     vz0 = 3 * n
     lx = state[vx0 + nf]
     lz = state[vz0 + nf]
-    speed = max(math.sqrt(lx * lx + lz * lz), 1e-12)
+    speed = max(math.sqrt(lx * lx + lz * lz), MIN_SPEED)
     inv = 1.0 / speed
     ex = lx * inv
     ez = lz * inv
@@ -94,6 +101,118 @@ def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs
     obs[2 * nf + 1] = ez
     obs[2 * nf + 2] = math.log(speed) / LOG_SPEED_SCALE
     return 0
+
+
+def _n_agents(s: jax.Array) -> int:
+    """The number of particles, from the state's length ``4 n`` (a static shape under ``jax.jit``,
+    where ``args.n_agents`` is a traced value that cannot size an array)."""
+    return s.shape[0] // 4
+
+
+def _leader_speed(s: jax.Array) -> jax.Array:
+    """``|v_N|``, at least ``MIN_SPEED`` (written as ``observe`` computes it, for the same rounding)."""
+    n = _n_agents(s)
+    lx, lz = s[3 * n - 1], s[4 * n - 1]
+    return jnp.maximum(jnp.sqrt(lx * lx + lz * lz), MIN_SPEED)
+
+
+def initial(key: jax.Array, p: jax.Array, args: Args) -> jax.Array:
+    """A new episode as `draw` makes it (state layout ``(x_1..x_N, z_1..z_N, xd_1..xd_N, zd_1..zd_N)``,
+    leader last), or the preset's start state.
+
+    Parameters
+    ----------
+    key : jax.Array
+        The episode's random key.
+    p : jax.Array, shape (n_agents + 1,)
+        The true parameters ``(m_1, ..., m_N, g)`` (unused: the start state does not depend on them;
+        their length gives the flock's size).
+    args : Args
+        ``use_preset`` and ``preset_state`` (``n_agents`` is traced under ``jax.jit``: the sizes come
+        from ``p``).
+
+    Returns
+    -------
+    jax.Array, shape (4 n_agents,)
+    """
+    n = p.shape[0] - 1  # (m_1..m_N, g): a static size, unlike args.n_agents under jit
+    nf = n - 1
+    dtype = p.dtype
+    k_leader, k_leader_sign, k_follower, k_follower_sign = jax.random.split(key, 4)
+    # Leader: xd_N - zd_N in [1, 3] keeps C = diag((xd_N - zd_N)/m) away from singular for the whole
+    # episode (zd_N only decreases in free fall).
+    lx_size, gap = jax.random.uniform(k_leader, (2,), dtype, jnp.array([0.5, 1.0], dtype), jnp.array([2.0, 3.0], dtype))
+    lx = lx_size * jax.random.rademacher(k_leader_sign, (), dtype)
+    lz = lx - gap
+    speed = jnp.hypot(lx, lz)
+    angle = jnp.arctan2(lz, lx)
+    # Followers: off the manifold by construction (angle offset 0.3..1.2 rad either way), speed
+    # 0.5..2 times the leader's, within 20 m of the leader in x and z.
+    lo = jnp.array([0.3, 0.5, -20.0, -20.0], dtype)
+    hi = jnp.array([1.2, 2.0, 20.0, 20.0], dtype)
+    off, scale, x, dz = jax.random.uniform(k_follower, (4, nf), dtype, lo[:, None], hi[:, None])
+    off = off * jax.random.rademacher(k_follower_sign, (nf,), dtype)
+    mag = speed * scale
+    one = jnp.ones((1,), dtype)
+    drawn = jnp.concatenate([
+        x, 0.0 * one,  # x: the leader at 0
+        100.0 + dz, 100.0 * one,  # z: the leader at 100
+        mag * jnp.cos(angle + off), lx * one,  # xd
+        mag * jnp.sin(angle + off), lz * one,  # zd
+    ])
+    # The preset's start state every time (use_preset is traced under jit: a select, not a branch).
+    return jnp.where(args.use_preset, jnp.asarray(args.preset_state, dtype), drawn)
+
+
+def observation(s: jax.Array, phi: jax.Array, p: jax.Array, args: Args) -> jax.Array:
+    """As `observe`: follower velocities in units of the leader's speed, the leader's direction and log
+    speed, then ``phi^b / |v_N|^2`` (from the velocities: the same with true or nominal masses).
+
+    Parameters
+    ----------
+    s : jax.Array, shape (4 n_agents,)
+    phi : jax.Array, shape (n_agents - 1,)
+        Unused (``phi^b / |v_N|^2`` is computed from the scaled velocities, as `observe` does).
+    p : jax.Array
+        The nominal parameters (unused).
+    args : Args
+
+    Returns
+    -------
+    jax.Array, shape (3 (n_agents - 1) + 3,)
+    """
+    n = _n_agents(s)
+    nf = n - 1
+    speed = _leader_speed(s)
+    inv = 1.0 / speed
+    ex, ez = s[3 * n - 1] * inv, s[4 * n - 1] * inv
+    rx = s[2 * n: 2 * n + nf] * inv
+    rz = s[3 * n: 3 * n + nf] * inv
+    return jnp.concatenate([
+        jnp.stack([rx, rz], axis=1).reshape(-1),  # r_b = v_b / |v_N|, interleaved (x, z) per follower
+        jnp.stack([ex, ez, jnp.log(speed) / LOG_SPEED_SCALE]),
+        ex * rz - rx * ez,  # phi^b / |v_N|^2
+    ])
+
+
+def scale_free(s: jax.Array, phi: jax.Array, args: Args) -> jax.Array:
+    """``phi~^b = phi^b / (|v_N| phi_sf_scale)``: follower ``b``'s velocity across the leader's direction
+    of motion (divided in `observe`'s order, for the same rounding)."""
+    return phi / PHI_SF_SCALE / _leader_speed(s)
+
+
+@cache
+def flock_jax_system(n_agents: int) -> Any:
+    """The printed system of ``n_agents`` particles as a fleet of the printed two-particle unit (one
+    follower and the leader, ``flocking2``) run on every follower by ``jax.vmap``, in the numba
+    fleet's layout: no derivation or code grows with ``n_agents`` (cached: one object per size, so
+    that compiled functions keyed on it are reused)."""
+    from vnhc_gym.mechanics.functional_fleet import FleetSystem
+    from vnhc_gym.systems.flocking import flocking_layout
+    from vnhc_gym.systems.printed import load
+
+    names = tuple(f"{c}_{i}" for c in ("x", "z", "xd", "zd") for i in range(1, n_agents + 1))
+    return FleetSystem(load("flocking2"), flocking_layout(n_agents), state_names=names)
 
 
 @dataclass(frozen=True)
@@ -121,7 +240,7 @@ class FlockingTask(Task):
     reward_sigma = 0.3
     phi_units = "m^2/s^2"
     phi_sf_meaning = "phi^b / (|v_N| 1 m/s): the follower's velocity across the leader's direction of motion"
-    phi_sf_scale = 1.0
+    phi_sf_scale = PHI_SF_SCALE
     mismatch_stage = 1  # the start state is drawn before the true masses
 
     @property
@@ -153,6 +272,12 @@ class FlockingTask(Task):
             n_agents=n_agents,
             preset_state=FLOCKING_PRESETS[preset].state() if preset is not None else np.zeros(4 * n_agents),
             use_preset=preset is not None)
+
+    def jax_system(self) -> Any:
+        """The flock's printed JAX system for any ``n_agents``: the two-particle unit ``flocking2`` on
+        every follower by ``jax.vmap`` (`flock_jax_system`), in the numba model's state and parameter
+        order."""
+        return flock_jax_system(self.n_agents)
 
     def scene(self, state: Array, phi: Array, params: Array) -> Scene:
         """The particles in their plane, the leader red, each follower with a guide along the leader's

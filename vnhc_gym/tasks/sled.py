@@ -6,6 +6,8 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
@@ -59,6 +61,32 @@ def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs
     obs[3] = phi[0] / OBS_VEL_SCALE
     obs[4] = phi[1] / OBS_VEL_SCALE
     return FAST if math.hypot(state[3], state[4]) > args.max_speed else 0
+
+
+def initial(key: jax.Array, p: jax.Array, args: Args) -> jax.Array:
+    """Anywhere, any heading, off the constraint in both components (slipping, and faster or slower
+    than the cruise speed), turning."""
+    k_u, k_sign = jax.random.split(key)
+    lo = jnp.array([-5.0, -5.0, -math.pi, 0.2, 0.1, -1.0])
+    hi = jnp.array([5.0, 5.0, math.pi, 1.0, 0.5, 1.0])
+    x, y, theta, dv, side, rate = jax.random.uniform(k_u, (6,), minval=lo, maxval=hi)
+    sign_v, sign_side = jax.random.rademacher(k_sign, (2,), dtype=x.dtype)
+    forward = args.v_ref + dv * sign_v
+    side = side * sign_side
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    return jnp.stack([x, y, theta, forward * c - side * s, forward * s + side * c, rate])
+
+
+def observation(s: jax.Array, phi: jax.Array, p: jax.Array, args: Args) -> jax.Array:
+    """Velocities in the sled's frame (forward, sideways), the turn rate and ``phi``."""
+    c, sn = jnp.cos(s[2]), jnp.sin(s[2])
+    return jnp.stack([(c * s[3] + sn * s[4]) / OBS_VEL_SCALE, (-sn * s[3] + c * s[4]) / OBS_VEL_SCALE,
+                      s[5] / OBS_RATE_SCALE, phi[0] / OBS_VEL_SCALE, phi[1] / OBS_VEL_SCALE])
+
+
+def terminations(s: jax.Array, phi: jax.Array, args: Args) -> dict[str, jax.Array]:
+    """Faster than ``max_speed`` over ground (the turn-rate bound is one of the task's ``limits``)."""
+    return {"speed_exceeded": jnp.hypot(s[3], s[4]) > args.max_speed}
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,8 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
@@ -75,6 +77,42 @@ def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs
     for b in range(3):
         obs[6 + b] = phi[b] / OBS_RATE_SCALE
     return RATE_EXCEEDED if math.sqrt(w1 * w1 + w2 * w2 + w3 * w3) > args.max_rate else 0
+
+
+def _rates(s: jax.Array) -> jax.Array:
+    """``omega = E(q) qd`` for ZYX angles ``q = (psi, theta, varphi)``."""
+    st, ct, sp, cp = jnp.sin(s[1]), jnp.cos(s[1]), jnp.sin(s[2]), jnp.cos(s[2])
+    return jnp.stack([-st * s[3] + s[5], ct * sp * s[3] + cp * s[4], ct * cp * s[3] - sp * s[4]])
+
+
+def initial(key: jax.Array, p: jax.Array, args: Args) -> jax.Array:
+    """Any yaw, pitch and roll within 45 degrees (a tilt of axis 3 up to 60 degrees), and a body
+    rate off the constraint by 0.2-1 rad/s in each component, either way."""
+    k_angles, k_off, k_sign = jax.random.split(key, 3)
+    quarter = 0.25 * math.pi
+    psi, theta, varphi = jax.random.uniform(k_angles, (3,), minval=jnp.array([-math.pi, -quarter, -quarter]),
+                                            maxval=jnp.array([math.pi, quarter, quarter]))
+    off = jax.random.uniform(k_off, (3,), minval=0.2, maxval=1.0) * jax.random.rademacher(k_sign, (3,),
+                                                                                          dtype=psi.dtype)
+    st, ct, sp, cp = jnp.sin(theta), jnp.cos(theta), jnp.sin(varphi), jnp.cos(varphi)
+    spin, lam = p[3], p[4]
+    w1 = -lam * ct * sp + off[0]  # the constraint's omega_1 = -lam z2, then off it
+    w2 = lam * -st + off[1]  # omega_2 = lam z1
+    w3 = spin + off[2]
+    # qd = E^-1 omega, in closed form (|theta| < pi/2 here).
+    psid = (sp * w2 + cp * w3) / ct
+    return jnp.stack([psi, theta, varphi, psid, cp * w2 - sp * w3, w1 + st * psid])
+
+
+def observation(s: jax.Array, phi: jax.Array, p: jax.Array, args: Args) -> jax.Array:
+    """The vertical in body axes, the body rates and ``phi``."""
+    st, ct, sp, cp = jnp.sin(s[1]), jnp.cos(s[1]), jnp.sin(s[2]), jnp.cos(s[2])
+    return jnp.concatenate([jnp.stack([-st, ct * sp, ct * cp]), _rates(s) / OBS_RATE_SCALE, phi / OBS_RATE_SCALE])
+
+
+def terminations(s: jax.Array, phi: jax.Array, args: Args) -> dict[str, jax.Array]:
+    """A body rate above ``max_rate`` (the pitch bound is one of the task's ``limits``)."""
+    return {"rate_exceeded": jnp.linalg.norm(_rates(s)) > args.max_rate}
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import ModuleType
 from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
@@ -99,6 +102,102 @@ def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs
     for j in range(4):
         obs[10 + j] = aux[2 + j]  # nominal dC1/dx, dC1/dy, dC2/dx, dC2/dy (1/s)
     return 0
+
+
+def task_params(key: jax.Array, p: jax.Array, args: Args) -> jax.Array:
+    """`draw`'s stage 0: the random current's amplitudes ``amp_w[k] z_k``, ``z_k`` standard normal,
+    into the nominal vector (before the mismatch, which then scales the drawn field).
+
+    Parameters
+    ----------
+    key : jax.Array
+        The episode's key for the task's own parameters.
+    p : jax.Array, shape (n_params,)
+        The task's nominal parameters.
+    args : Args
+        ``amp_idx`` and ``amp_w`` (zero-length for a fixed field: ``p`` is returned unchanged).
+
+    Returns
+    -------
+    jax.Array, shape (n_params,)
+        The episode's nominal parameters.
+    """
+    amp_idx = jnp.asarray(args.amp_idx)
+    z = jax.random.normal(key, amp_idx.shape, p.dtype)  # a static shape: (0,) for a fixed field
+    return p.at[amp_idx].set(jnp.asarray(args.amp_w, p.dtype) * z)
+
+
+def initial(key: jax.Array, p: jax.Array, args: Args, *, system: ModuleType) -> jax.Array:
+    """`draw`'s stages 1 and 2: the pose, then the velocity from the true current there, or the
+    preset's start state.
+
+    Position ``U(-5, 5)^2``, heading ``U(-pi, pi)``; velocity = current + ``U(0.5, 1.5)`` along the
+    heading (raised to a ground speed of 0.3 m/s along the heading if needed) + ``±U(0.2, 1)``
+    across it, so that ``|phi(0)| >= 0.2`` with the true parameters; turn rate ``U(-0.5, 0.5)``.
+
+    Parameters
+    ----------
+    key : jax.Array
+        The episode's key for the start state.
+    p : jax.Array, shape (n_params,)
+        The episode's true parameters (after the mismatch): the current the boat starts in.
+    args : Args
+        ``use_preset`` and ``preset_state``.
+    system : module
+        The printed USV system of the task's current (its ``outputs``: the current at the pose).
+
+    Returns
+    -------
+    jax.Array, shape (6,)
+        ``(x, y, theta, xd, yd, thetad)``.
+    """
+    dtype = p.dtype
+    k_pose, k_speed, k_sign = jax.random.split(key, 3)
+    x, y, theta = jax.random.uniform(k_pose, (3,), dtype, jnp.array([-5.0, -5.0, -math.pi], dtype),
+                                     jnp.array([5.0, 5.0, math.pi], dtype))
+    zero = jnp.zeros((), dtype)
+    c1, c2 = system.outputs(jnp.stack([x, y, theta, zero, zero, zero]), p)[:2]  # the true current at the pose
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    ahead, across, rate = jax.random.uniform(k_speed, (3,), dtype, jnp.array([0.5, 0.2, -0.5], dtype),
+                                             jnp.array([1.5, 1.0, 0.5], dtype))
+    # Forward through the water, and at least 0.3 m/s forward over ground along the heading:
+    # on the manifold I thetadd = -m thetad v_forward, unstable when the boat goes backwards.
+    forward = jnp.maximum(ahead, 0.3 - (c1 * c + c2 * s))
+    phi0 = across * jax.random.rademacher(k_sign, (), dtype)  # off the manifold by construction
+    # Velocity = current + forward speed along the heading + phi0 across it (mu = (sin, -cos)).
+    drawn = jnp.stack([x, y, theta, c1 + forward * c + phi0 * s, c2 + forward * s - phi0 * c, rate])
+    # The preset's start state every time (use_preset is traced under jit: a select, not a branch).
+    return jnp.where(args.use_preset, jnp.asarray(args.preset_state, dtype), drawn)
+
+
+def observation(s: jax.Array, phi: jax.Array, p: jax.Array, args: Args, *, system: ModuleType) -> jax.Array:
+    """As `observe`: the heading, velocities, the nominal current map at the boat (value and
+    gradient), the position and ``phi`` with the nominal current.
+
+    Parameters
+    ----------
+    s : jax.Array, shape (6,)
+    phi : jax.Array, shape (1,)
+        Unused: the observation's ``phi`` is with the nominal current (what a chart gives).
+    p : jax.Array, shape (n_params,)
+        The nominal parameters: the current map a controller is told.
+    args : Args
+        ``domain``.
+    system : module
+        The printed USV system of the task's current.
+
+    Returns
+    -------
+    jax.Array, shape (USV_OBS_DIM,)
+    """
+    aux = system.outputs(s, p)  # nominal C1, C2, dC1/dx, dC1/dy, dC2/dx, dC2/dy at the boat
+    c, sn = jnp.cos(s[2]), jnp.sin(s[2])
+    xd, yd = s[3], s[4]
+    c1, c2 = aux[0], aux[1]
+    head = jnp.stack([c, sn, xd / OBS_VEL_SCALE, yd / OBS_VEL_SCALE, s[5] / OBS_RATE_SCALE, c1 / OBS_VEL_SCALE,
+                      c2 / OBS_VEL_SCALE, s[0] / args.domain, s[1] / args.domain,
+                      (sn * xd - c * yd + c * c2 - sn * c1) / OBS_VEL_SCALE])  # phi with the nominal current
+    return jnp.concatenate([head, aux[2:6]])  # the gradient (1/s): a controller's local affine model
 
 
 @dataclass(frozen=True)

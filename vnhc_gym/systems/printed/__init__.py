@@ -34,11 +34,13 @@ def _sources() -> dict[str, tuple[str, Callable[[], Any]]]:
         "cartpole": ("cartpole_system()", cartpole_system),
         "spacecraft": ("spacecraft_system()", spacecraft_system),
         "flocking4": ("flocking_system(4)", partial(flocking_system, 4)),
+        "flocking2": ("flocking_system(2)", partial(flocking_system, 2)),
     }
 
 
 #: Printed module name -> the call in `vnhc_gym.systems` it is printed from.
-SOURCES: tuple[str, ...] = ("usv_northeast", "usv_random", "usv_affine", "sled", "cartpole", "spacecraft", "flocking4")
+SOURCES: tuple[str, ...] = ("usv_northeast", "usv_random", "usv_affine", "sled", "cartpole", "spacecraft", "flocking4",
+                             "flocking2")
 
 
 def text(name: str) -> str:

@@ -1,0 +1,380 @@
+"""An environment as pure JAX functions: the step every task shares, around a task's own start
+state, observation and terminations, with gymnax's interface.
+
+A task writes, in plain ``jax.numpy`` over one episode (no buffers, no row indices, no status codes):
+
+- ``initial(key, p, args) -> s``: the start state, drawn with ``key``, from the episode's true
+  parameters ``p`` (a current the boat starts in, say);
+- ``observation(s, phi, p, args) -> obs``: what the agent sees, from the state, ``phi`` with the
+  true parameters, and the *nominal* parameters ``p`` (what a controller is told);
+- optionally ``terminations(s, phi, args) -> {reason: bool}``: named predicates, checked in order;
+- optionally ``task_params(key, p, args) -> p``: the task's own random parameters (a random
+  current's amplitudes), drawn before the mismatch;
+- optionally ``scale_free(s, phi, args) -> phi~``: the scale-free ``phi`` of the reward (default
+  ``phi / phi_sf_scale``).
+
+``args`` is the task's constants (a ``NamedTuple`` of numbers and arrays), part of the parameters
+pytree. `FunctionalEnv` does the rest once for every task: the action's clip and force bound, the
+velocity impulses, RK4 (with the stabilising law inside it in the feedback modes), the non-finite
+end, the state bounds (``Task.limits``), observation noise and clip, the scale-free ``phi`` and the
+reward, the time limit and gymnax's autoreset.
+
+Everything is a pure function of arrays: ``jax.jit`` compiles it, ``jax.vmap`` batches it over
+episodes, and the same code runs on a CPU or a GPU.  The precision is the caller's (float32 by
+default in JAX; float64 inside ``jax.enable_x64(True)``); nothing here changes JAX's global settings.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from functools import partial
+from types import ModuleType
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from gymnasium import spaces
+
+from vnhc_gym.mechanics import functional as core
+
+__all__ = ["EnvParams", "EnvState", "FunctionalEnv", "Step", "TaskFunctions", "make_jax"]
+
+Array = Any  # a jax.Array
+
+#: The reward shapes of ``EnvConfig.reward`` (see `vnhc_gym.envs.config.REWARDS`).
+REWARD_SHAPES = ("raw", "bounded", "reciprocal")
+FEEDBACK = ("open", "continuous", "sampled")
+
+
+@dataclass(frozen=True, eq=False)
+class TaskFunctions:
+    """A task's own pure functions and the declarations the shared step reads (hashable by identity,
+    so that it can be a static argument of ``jax.jit``).
+
+    Attributes
+    ----------
+    name : str
+        The task's registry name (for errors).
+    system : module
+        The printed system (`vnhc_gym.systems.printed`): ``drift``, ``input_fields``, ``phi``, ...
+    initial, observation : callable
+        See the module's docstring.
+    terminations, task_params, scale_free : callable or None
+        See the module's docstring.
+    reasons : tuple of str
+        Termination reasons by status: status ``1 + i`` is ``reasons[i]``; ``reasons[0]`` is
+        ``"non_finite_state"``, then the task's own (the keys of ``terminations``, in order), then
+        those only the state bounds name.
+    limits : tuple of (str, int)
+        ``(reason, index)``: the episode ends when ``|s[index]|`` exceeds the bound of the same
+        position in `EnvParams.limit_bounds`.
+    impulse_mask : tuple of float
+        Weights of the velocity entries that impulses kick.
+    uncertain : tuple of bool
+        Per parameter: whether the mismatch perturbs it.
+    obs_dim : int
+    """
+
+    name: str
+    system: ModuleType
+    initial: Callable[..., Array]
+    observation: Callable[..., Array]
+    terminations: Callable[..., Mapping[str, Array]] | None = None
+    task_params: Callable[..., Array] | None = None
+    scale_free: Callable[..., Array] | None = None
+    reasons: tuple[str, ...] = ("non_finite_state",)
+    limits: tuple[tuple[str, int], ...] = ()
+    impulse_mask: tuple[float, ...] = ()
+    uncertain: tuple[bool, ...] = ()
+    obs_dim: int = 0
+
+
+class EnvParams(NamedTuple):
+    """What an episode is drawn and scored with (a pytree: change it without recompiling).
+
+    Names and meanings as in the environments' cards (`vnhc_gym.envs.config.EnvConfig`).
+    """
+
+    nominal: Array  #: (n_params,) the parameters a controller is told
+    force_bound: Array  #: (m,) force (N, N m) of action 1 per control
+    dt: Array  #: control period (s)
+    param_mismatch: Array
+    obs_noise: Array
+    obs_clip: Array
+    impulse_prob: Array
+    impulse_scale: Array
+    reward_sigma: Array
+    phi_scale: Array
+    phi_sf_scale: Array
+    action_cost: Array
+    reward_clip: Array
+    gains: Array  #: the in-loop law's gains (the feedback modes)
+    limit_bounds: Array  #: (L,) the state bounds of ``TaskFunctions.limits``
+    args: Any  #: the task's constants
+    max_steps_in_episode: int = 400
+
+
+class EnvState(NamedTuple):
+    """One episode (gymnax's ``EnvState``: the environment's whole memory)."""
+
+    s: Array  #: (2n,) the physical state ``(q, qd)``
+    p: Array  #: (n_params,) the episode's true parameters
+    p_nominal: Array  #: (n_params,) what a controller is told (the task's own random parameters in it)
+    obs: Array  #: the last observation (kept when a new one is not finite)
+    time: Array  #: steps since the episode's start
+
+
+class Step(NamedTuple):
+    """What `FunctionalEnv.transition` returns beside the new state."""
+
+    obs: Array
+    reward: Array
+    terminated: Array
+    status: Array  #: 0, or ``1 + i`` for reason ``i`` of ``TaskFunctions.reasons``
+    phi: Array  #: (m,) with the true parameters, at the new state
+    abs_phi: Array  #: mean |phi|
+    abs_phi_sf: Array  #: mean |phi~|
+    force: Array  #: (m,) the applied force, averaged over the substeps
+    s_reached: Array  #: the state RK4 reached (not finite when the episode ended as non-finite)
+
+
+@dataclass(frozen=True, eq=False)
+class FunctionalEnv:
+    """A task's environment as pure functions, with gymnax's interface.
+
+    ``reset(key, params) -> (obs, state)`` and ``step(key, state, action, params) -> (obs, state,
+    reward, terminated, truncated, info)`` with an automatic reset at an episode's end (the
+    episode's last observation in ``info["final_observation"]``), as in gymnax; `transition` is the
+    step without the reset, for the Gymnasium environments.
+
+    Parameters
+    ----------
+    task : TaskFunctions
+    substeps : int
+        RK4 steps per control period (a loop count: fixed at compile time).
+    reward : {"raw", "bounded", "reciprocal"}
+    feedback : {"open", "continuous", "sampled"}
+        ``"open"``: the action's force alone; ``"continuous"``: the law (nominal parameters, true
+        state) added at every RK4 stage; ``"sampled"``: added once per period and held.  The total
+        is clipped to the force bound.
+    default_params : EnvParams
+    """
+
+    task: TaskFunctions
+    default_params: EnvParams
+    substeps: int = 1
+    reward: str = "bounded"
+    feedback: str = "open"
+
+    def __post_init__(self) -> None:
+        if self.reward not in REWARD_SHAPES:
+            raise ValueError(f"reward must be one of {list(REWARD_SHAPES)}, got {self.reward!r}")
+        if self.feedback not in FEEDBACK:
+            raise ValueError(f"feedback must be one of {list(FEEDBACK)}, got {self.feedback!r}")
+
+    # ------------------------------------------------------------------ gymnax's interface
+    @property
+    def name(self) -> str:
+        return self.task.name
+
+    @property
+    def num_actions(self) -> int:
+        return int(self.task.system.M)
+
+    def action_space(self, params: EnvParams | None = None) -> spaces.Box:
+        """``Box(-1, 1, (m,))``: the force is ``force_bound * action``."""
+        return spaces.Box(-1.0, 1.0, (self.num_actions,), np.float32)
+
+    def observation_space(self, params: EnvParams | None = None) -> spaces.Box:
+        """``Box(-obs_clip, obs_clip, (obs_dim,))``."""
+        clip = np.float32((params or self.default_params).obs_clip)
+        return spaces.Box(-clip, clip, (self.task.obs_dim,), np.float32)
+
+    @partial(jax.jit, static_argnums=0)
+    def reset(self, key: Array, params: EnvParams | None = None) -> tuple[Array, EnvState]:
+        """A new episode drawn with ``key``: its observation and state."""
+        return self.initial(key, self.default_params if params is None else params)
+
+    @partial(jax.jit, static_argnums=0)
+    def step(self, key: Array, state: EnvState, action: Array, params: EnvParams | None = None
+             ) -> tuple[Array, EnvState, Array, Array, Array, dict[str, Array]]:
+        """One control period, then a new episode if this one ended (gymnax's autoreset)."""
+        params = self.default_params if params is None else params
+        key_step, key_reset = jax.random.split(key)
+        new, out = self.transition(key_step, state, action, params)
+        truncated = jnp.logical_and(~out.terminated, new.time >= params.max_steps_in_episode)
+        done = jnp.logical_or(out.terminated, truncated)
+        obs_reset, state_reset = self.initial(key_reset, params)
+        state = jax.tree.map(lambda a, b: jnp.where(done, a, b), state_reset, new)
+        obs = jnp.where(done, obs_reset, out.obs)
+        info = {"phi": out.phi, "abs_phi": out.abs_phi, "abs_phi_sf": out.abs_phi_sf, "status": out.status,
+                "force": out.force, "final_observation": out.obs, "terminated": out.terminated,
+                "truncated": truncated}
+        return obs, state, out.reward, out.terminated, truncated, info
+
+    # ------------------------------------------------------------------ the shared step
+    def initial(self, key: Array, params: EnvParams) -> tuple[Array, EnvState]:
+        """A new episode: the task's own random parameters, the mismatch of the uncertain ones, the
+        task's start state, then its observation (with noise)."""
+        t = self.task
+        k_task, k_mismatch, k_state, k_noise = jax.random.split(key, 4)
+        nominal = jnp.asarray(params.nominal)
+        if t.task_params is not None:
+            nominal = t.task_params(k_task, nominal, params.args)
+
+        def mismatch(k: Array) -> Array:
+            factor = 1.0 + params.param_mismatch * jax.random.uniform(k, nominal.shape, nominal.dtype, -1.0, 1.0)
+            return jnp.where(jnp.asarray(t.uncertain, dtype=bool), nominal * factor, nominal)
+
+        p = _when(params.param_mismatch > 0, mismatch, lambda k: nominal, k_mismatch)
+        s = t.initial(k_state, p, params.args)
+        obs = self._observe(k_noise, s, t.system.phi(s, p), nominal, params)
+        return obs, EnvState(s=s, p=p, p_nominal=nominal, obs=obs, time=jnp.zeros((), jnp.int32))
+
+    def transition(self, key: Array, state: EnvState, action: Array, params: EnvParams) -> tuple[EnvState, Step]:
+        """One control period of one episode, without the reset (see `step`)."""
+        t = self.task
+        system = t.system
+        n = system.N
+        k_kick, k_noise = jax.random.split(key)
+        a = jnp.clip(jnp.asarray(action, dtype=state.s.dtype), -1.0, 1.0)
+        s_next, force = self._advance(state, a * params.force_bound, params)
+
+        def kick(k: Array) -> Array:
+            """A velocity impulse with probability impulse_prob, on the entries impulse_mask weights."""
+            k_when, k_size = jax.random.split(k)
+            size = params.impulse_scale * jax.random.normal(k_size, (n,), state.s.dtype) * jnp.asarray(t.impulse_mask)
+            return jnp.where(jax.random.uniform(k_when, (), state.s.dtype) < params.impulse_prob, size, 0.0)
+
+        s_next = s_next.at[n:].add(_when(params.impulse_prob > 0, kick, lambda k: jnp.zeros(n, state.s.dtype),
+                                         k_kick))
+        finite = jnp.all(jnp.isfinite(s_next))
+        s = jnp.where(finite, s_next, state.s)  # a non-finite state ends the episode; the last finite one stays
+        phi = system.phi(s, state.p)
+        phi_sf = self._scale_free(s, phi, params)
+        obs = self._observe(k_noise, s, phi, state.p_nominal, params)
+        abs_phi = jnp.mean(jnp.abs(phi))
+        abs_phi_sf = jnp.mean(jnp.abs(phi_sf))
+        nonfinite = ~finite | ~jnp.isfinite(abs_phi) | ~jnp.all(jnp.isfinite(obs))
+        status = jnp.where(nonfinite, 1, self._status(s, phi, params))
+        reward = self._reward(abs_phi, abs_phi_sf, a, nonfinite, params)
+        obs = jnp.where(nonfinite, state.obs, obs)
+        new = EnvState(s=s, p=state.p, p_nominal=state.p_nominal, obs=obs, time=state.time + 1)
+        return new, Step(obs=obs, reward=reward, terminated=status > 0, status=status, phi=phi, abs_phi=abs_phi,
+                         abs_phi_sf=abs_phi_sf, force=force, s_reached=s_next)
+
+    def _advance(self, state: EnvState, force: Array, params: EnvParams) -> tuple[Array, Array]:
+        """RK4 over ``dt`` with the action's force (and the law, in the feedback modes), the total
+        clipped to the force bound; the applied force averaged over the substeps."""
+        system, bound = self.task.system, params.force_bound
+        s, p = state.s, state.p
+        if self.feedback == "open":
+            return core.rk4_step(system, s, p, force, params.dt, self.substeps), force
+        if self.feedback == "sampled":
+            total = jnp.clip(force + _safe_law(system, s, state.p_nominal, params.gains), -bound, bound)
+            return core.rk4_step(system, s, p, total, params.dt, self.substeps), total
+        h = params.dt / self.substeps
+
+        def control(x: Array) -> Array:
+            return jnp.clip(force + _safe_law(system, x, state.p_nominal, params.gains), -bound, bound)
+
+        def field(x: Array) -> Array:
+            return core.vector_field(system, x, p, control(x))
+
+        def one(_: int, carry: tuple[Array, Array]) -> tuple[Array, Array]:
+            x, acc = carry
+            k1 = field(x)
+            k2 = field(x + 0.5 * h * k1)
+            k3 = field(x + 0.5 * h * k2)
+            k4 = field(x + h * k3)
+            return x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4), acc + control(x)
+
+        x, acc = jax.lax.fori_loop(0, self.substeps, one, (s, jnp.zeros_like(force)))
+        return x, acc / self.substeps
+
+    def _scale_free(self, s: Array, phi: Array, params: EnvParams) -> Array:
+        if self.task.scale_free is not None:
+            return self.task.scale_free(s, phi, params.args)
+        return phi / params.phi_sf_scale
+
+    def _observe(self, key: Array, s: Array, phi: Array, nominal: Array, params: EnvParams) -> Array:
+        """The task's observation with Gaussian noise, clipped."""
+        obs = jnp.asarray(self.task.observation(s, phi, nominal, params.args), dtype=s.dtype)
+        obs = _when(params.obs_noise > 0, lambda k: obs + params.obs_noise * jax.random.normal(k, obs.shape, obs.dtype),
+                    lambda k: obs, key)
+        return jnp.clip(obs, -params.obs_clip, params.obs_clip)
+
+    def _status(self, s: Array, phi: Array, params: EnvParams) -> Array:
+        """0, or ``1 + i`` for the first reason ``i`` that holds: the task's predicates in order, then
+        the state bounds in order."""
+        t = self.task
+        checks: list[tuple[str, Array]] = []
+        if t.terminations is not None:
+            checks += list(t.terminations(s, phi, params.args).items())
+        checks += [(reason, jnp.abs(s[i]) > params.limit_bounds[k]) for k, (reason, i) in enumerate(t.limits)]
+        status = jnp.zeros((), jnp.int32)
+        for reason, hit in reversed(checks):  # the first that holds wins
+            status = jnp.where(hit, 1 + t.reasons.index(reason), status)
+        return status
+
+    def _reward(self, abs_phi: Array, abs_phi_sf: Array, a: Array, nonfinite: Array, params: EnvParams) -> Array:
+        """The reward of ``EnvConfig.reward``; 0 (``"raw"``: ``-reward_clip``) at a non-finite end."""
+        cost = params.action_cost * jnp.mean(a * a)
+        if self.reward == "raw":
+            r = -abs_phi / params.phi_scale - cost
+            r = jnp.where(nonfinite | jnp.isnan(r), -params.reward_clip, r)
+            return jnp.clip(r, -params.reward_clip, 0.0)
+        x = abs_phi_sf / params.reward_sigma
+        r = (jnp.exp(-x) if self.reward == "bounded" else 1.0 / (1.0 + x)) - cost
+        return jnp.clip(jnp.where(nonfinite | jnp.isnan(r), 0.0, r), 0.0, 1.0)
+
+
+def _when(pred: Array, draw: Callable[[Array], Array], otherwise: Callable[[Array], Array], key: Array) -> Array:
+    """``draw(key)`` if ``pred`` else ``otherwise(key)``: random draws only where a scenario has them.
+
+    Why a ``lax.cond``: the predicate is a parameter, the same for every episode of a batch, so
+    under ``jax.vmap`` it stays a branch and a scenario without noise draws no random numbers (the
+    threefry draws cost more than the physics of a step on a CPU).
+    """
+    return jax.lax.cond(pred, draw, otherwise, key)
+
+
+def _safe_law(system: ModuleType, s: Array, p: Array, gains: Array) -> Array:
+    """The stabilising law, 0 where it is not finite (a singular decoupling matrix)."""
+    u = core.law(system, s, p, gains)
+    return jnp.where(jnp.all(jnp.isfinite(u)), u, 0.0)
+
+
+def make_jax(env_id: str, scenario: str = "nominal", *, feedback: str = "open", gains: Any = 1.0,
+             max_steps: int = 400, **kwargs: Any) -> tuple[FunctionalEnv, EnvParams]:
+    """A registered environment as pure JAX functions with gymnax's interface, and its parameters.
+
+    The same keyword arguments as ``gym.make(env_id, scenario=..., **kwargs)`` (checked the same
+    way), as in ``gymnax.make``::
+
+        env, params = make_jax("vnhc_gym/USVStream-v1", scenario="noisy")
+        obs, state = env.reset(jax.random.key(0), params)
+        obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+
+    Parameters
+    ----------
+    env_id : str
+        ``"vnhc_gym/USVStream-v1"`` (the version's defaults apply: ``-v0``'s raw reward), or a task name.
+    scenario : str
+    feedback, gains : see `FunctionalEnv` (the law inside the integrator)
+    max_steps : int
+        The time limit of the automatic reset (the registry's 400 steps).
+    """
+    from vnhc_gym.envs.config import configure
+    from vnhc_gym.tasks import VERSIONS, task_of_env_id
+
+    entry = task_of_env_id(env_id)
+    version = env_id.rsplit("-", 1)[-1] if "-v" in env_id else "v1"
+    task_class = entry.task_class
+    task_class.check_definition()
+    config, options = configure(scenario, {**VERSIONS.get(version, {}), **kwargs}, task_class.Options)
+    env: FunctionalEnv
+    env, params = task_class(config, options).functional(feedback=feedback, gains=gains, max_steps=max_steps)
+    return env, params
