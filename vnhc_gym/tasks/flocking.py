@@ -135,30 +135,27 @@ def initial(key: jax.Array, p: jax.Array, args: Args) -> jax.Array:
     -------
     jax.Array, shape (4 n_agents,)
     """
-    n = p.shape[0] - 1  # (m_1..m_N, g): a static size, unlike args.n_agents under jit
-    nf = n - 1
+    nf = p.shape[0] - 2  # (m_1..m_N, g): a static size, unlike args.n_agents under jit
     dtype = p.dtype
-    k_leader, k_leader_sign, k_follower, k_follower_sign = jax.random.split(key, 4)
+    k_leader, k_follower, k_sign = jax.random.split(key, 3)
+    signs = jax.random.rademacher(k_sign, (nf + 1,), dtype)
     # Leader: xd_N - zd_N in [1, 3] keeps C = diag((xd_N - zd_N)/m) away from singular for the whole
     # episode (zd_N only decreases in free fall).
     lx_size, gap = jax.random.uniform(k_leader, (2,), dtype, jnp.array([0.5, 1.0], dtype), jnp.array([2.0, 3.0], dtype))
-    lx = lx_size * jax.random.rademacher(k_leader_sign, (), dtype)
+    lx = lx_size * signs[nf]
     lz = lx - gap
-    speed = jnp.hypot(lx, lz)
-    angle = jnp.arctan2(lz, lx)
     # Followers: off the manifold by construction (angle offset 0.3..1.2 rad either way), speed
     # 0.5..2 times the leader's, within 20 m of the leader in x and z.
-    lo = jnp.array([0.3, 0.5, -20.0, -20.0], dtype)
-    hi = jnp.array([1.2, 2.0, 20.0, 20.0], dtype)
+    lo, hi = jnp.array([0.3, 0.5, -20.0, -20.0], dtype), jnp.array([1.2, 2.0, 20.0, 20.0], dtype)
     off, scale, x, dz = jax.random.uniform(k_follower, (4, nf), dtype, lo[:, None], hi[:, None])
-    off = off * jax.random.rademacher(k_follower_sign, (nf,), dtype)
-    mag = speed * scale
+    angle = jnp.arctan2(lz, lx) + off * signs[:nf]
+    mag = jnp.hypot(lx, lz) * scale
     one = jnp.ones((1,), dtype)
     drawn = jnp.concatenate([
         x, 0.0 * one,  # x: the leader at 0
         100.0 + dz, 100.0 * one,  # z: the leader at 100
-        mag * jnp.cos(angle + off), lx * one,  # xd
-        mag * jnp.sin(angle + off), lz * one,  # zd
+        mag * jnp.cos(angle), lx * one,  # xd
+        mag * jnp.sin(angle), lz * one,  # zd
     ])
     # The preset's start state every time (use_preset is traced under jit: a select, not a branch).
     return jnp.where(args.use_preset, jnp.asarray(args.preset_state, dtype), drawn)
