@@ -1,10 +1,18 @@
-"""PPO training throughput through the native vector environments: env-steps per second at several
-batch sizes, with the rollout (environment + policy inference) and update (gradient steps) shares,
-and the effect of torch's thread count, alone and with two trainings at once.  Writes
-results/bench_train.md and .json.
+"""PPO training throughput: the two backends side by side on every task (Stable-Baselines3 on the
+native vector environment, and PPO compiled with its environment, one seed and five in one
+program), then SB3's env-steps per second at several batch sizes, with the rollout (environment +
+policy inference) and update (gradient steps) shares, and the effect of torch's thread count, alone
+and with two trainings at once.  Writes results/bench_train.md and .json.
 
-    python experiments/bench_train.py              # about 6 minutes on 2 cores
+    python experiments/bench_train.py              # about 20 minutes on 2 cores
+    python experiments/bench_train.py --backends   # the side-by-side table only (13 minutes)
     python experiments/bench_train.py --quick      # a smoke run
+
+Both backends train with the same settings (agents/hyperparams/ppo.yml: 256 environments x 64
+steps, minibatches of 4096, 5 epochs, 64x64 tanh networks) through ``vnhc_gym.training.train``, so
+each figure is the user's job: env steps over the training wall time (SB3's start-up and the
+compiled program's compilation included; the validations excluded, as they are for both).  On a
+GPU the same command prints the GPU's figures for the compiled backend.
 
 The environment kernels run on one thread (numba, no thread pool), so only torch's threads can
 compete for the cores; at 256 environments the run compares one torch thread with two.  The
@@ -29,7 +37,7 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 
 import vnhc_gym
-from vnhc_gym.tasks import env_id
+from vnhc_gym.tasks import TASKS, env_id
 
 
 class _Clock(BaseCallback):
@@ -67,6 +75,25 @@ def measure(task: str, n_envs: int, threads: int, steps: int) -> dict[str, float
             "steps_per_s": done / wall, "rollout_share": clock.rollout / wall}
 
 
+def backends(task: str, steps: int, seeds: int) -> list[dict[str, float]]:
+    """One task: SB3's PPO, the compiled PPO with one seed, and with ``seeds`` seeds in one program."""
+    from vnhc_gym.training import TrainConfig, train
+    from vnhc_gym.training.run_jax import train_seeds
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        common = {"algo": "ppo", "env": task, "n_timesteps": steps, "eval_points": 1, "eval_episodes": 5,
+                  "test_episodes": 0}
+        meta = train(TrainConfig(**common, out=str(Path(tmp) / "sb3")))
+        rows.append({"task": task, "backend": "sb3", "seeds": 1, "steps_per_s": meta["steps_per_second"],
+                     "compile_s": 0.0, "steps_per_s_compiled": meta["steps_per_second"]})
+        for n in (1, seeds):
+            meta = train_seeds(TrainConfig(**common, backend="jax", out=str(Path(tmp) / f"jax{n}")), list(range(n)))[0]
+            rows.append({"task": task, "backend": "jax", "seeds": n, "steps_per_s": meta["steps_per_second"],
+                         "compile_s": meta["compile_wall"], "steps_per_s_compiled": meta["steps_per_second_compiled"]})
+    return rows
+
+
 def concurrent(jobs: int, threads: int, steps: int, task: str = "usv") -> dict[str, float]:
     """Wall time of ``jobs`` ``vnhc-gym train`` processes started together (``threads`` torch threads each)."""
     exe = shutil.which("vnhc-gym")
@@ -87,8 +114,30 @@ def concurrent(jobs: int, threads: int, steps: int, task: str = "usv") -> dict[s
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer steps and sizes (CI)")
+    ap.add_argument("--backends", action="store_true", help="the side-by-side table of the backends only")
     ap.add_argument("--out", default="results/bench_train")
     args = ap.parse_args()
+    side = []
+    for task in (("usv",) if args.quick else TASKS):
+        side += backends(task, 32_768 if args.quick else 983_040, 2 if args.quick else 5)
+        for r in side[-3:]:
+            print(f"{task:10s} {r['backend']:4s} seeds={r['seeds']}  {r['steps_per_s'] / 1e3:7.1f} k env-steps/s "
+                  f"(compilation {r['compile_s']:4.1f} s; without it {r['steps_per_s_compiled'] / 1e3:7.1f} k)",
+                  flush=True)
+    table = ["| task | backend | seeds in one program | k env-steps/s | x SB3 | compilation s | k env-steps/s "
+             "without compilation |", "|---|---|---:|---:|---:|---:|---:|"]
+    sb3 = {r["task"]: r["steps_per_s"] for r in side if r["backend"] == "sb3"}
+    table += [f"| {r['task']} | {r['backend']} | {r['seeds']} | {r['steps_per_s'] / 1e3:.1f} | "
+              f"{r['steps_per_s'] / sb3[r['task']]:.2f} | {r['compile_s']:.1f} | "
+              f"{r['steps_per_s_compiled'] / 1e3:.1f} |"
+              for r in side]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.backends:
+        (out / "bench_backends.json").write_text(json.dumps(side, indent=1))
+        (out / "bench_backends.md").write_text("\n".join(table) + "\n")
+        print("\n".join(table))
+        return
     steps = 16384 if args.quick else 196_608
     sizes = [8, 64] if args.quick else [8, 64, 256, 1024]
     rows = []
@@ -106,10 +155,9 @@ def main() -> None:
             together.append(concurrent(jobs, threads, 32_768 if args.quick else 300_000))
             r = together[-1]
             print(f"{jobs} x vnhc-gym train, {threads} torch thread(s) each: {r['wall']:6.1f} s", flush=True)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "bench_train.json").write_text(json.dumps({"throughput": rows, "concurrent": together}, indent=1))
-    lines = ["| task | n_envs | torch threads | k env-steps/s | rollout share | update share |",
+    (out / "bench_train.json").write_text(json.dumps({"backends": side, "throughput": rows, "concurrent": together},
+                                                     indent=1))
+    lines = [*table, "", "| task | n_envs | torch threads | k env-steps/s | rollout share | update share |",
              "|---|---:|---:|---:|---:|---:|"]
     lines += [f"| {r['task']} | {r['n_envs']} | {r['threads']} | {r['steps_per_s'] / 1e3:.1f} | "
               f"{100 * r['rollout_share']:.0f} % | {100 * (1 - r['rollout_share']):.0f} % |" for r in rows]

@@ -115,6 +115,36 @@ def test_the_episode_resets_itself_at_the_time_limit_and_at_an_end() -> None:
     assert env.task.reasons[int(info["status"]) - 1] == "speed_exceeded"
 
 
+def test_a_batch_step_is_the_transition_where_nothing_ended_and_a_new_episode_where_it_did() -> None:
+    """``step_batch``: the rows that go on are ``transition`` with the keys it splits; the rows that
+    ended (one truncated at the time limit, one terminated by a speed above the bound) start an
+    episode drawn with the reset keys, their last observation in ``final_observation``."""
+    env, params = make_jax("vnhc_gym/SledCruise-v1", max_steps=3)
+    n = 4
+    obs, states = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(jax.random.key(0), n), params)
+    states = states._replace(time=jnp.array([0, 2, 0, 1], jnp.int32), s=states.s.at[2, 3].set(50.0))
+    actions = jnp.zeros((n, 2))
+    key = jax.random.key(7)
+    obs2, new, reward, terminated, truncated, info = env.step_batch(key, states, actions, params)
+    key_step, key_reset = jax.random.split(key)
+    went_on, out = jax.vmap(env.transition, in_axes=(0, 0, 0, None))(jax.random.split(key_step, n), states,
+                                                                        actions, params)
+    reset_obs, reset_state = jax.vmap(env.initial, in_axes=(0, None))(jax.random.split(key_reset, n), params)
+    np.testing.assert_array_equal(np.asarray(truncated), [False, True, False, False])
+    np.testing.assert_array_equal(np.asarray(terminated), [False, False, True, False])
+    same = {"rtol": 1e-6, "atol": 1e-7}  # two compiled programs: equal to float32 rounding
+    for i in range(n):
+        ended = i in (1, 2)
+        want_obs, want_s = (reset_obs[i], reset_state.s[i]) if ended else (out.obs[i], went_on.s[i])
+        np.testing.assert_allclose(np.asarray(obs2[i]), np.asarray(want_obs), **same)
+        np.testing.assert_allclose(np.asarray(new.s[i]), np.asarray(want_s), **same)
+        np.testing.assert_allclose(np.asarray(info["final_observation"][i]), np.asarray(out.obs[i]), **same)
+        assert int(new.time[i]) == (0 if ended else int(states.time[i]) + 1)
+    np.testing.assert_allclose(np.asarray(reward), np.asarray(out.reward), **same)
+    # and the reset rows are other episodes than the ones that ended
+    assert not np.allclose(np.asarray(new.s[1]), np.asarray(went_on.s[1]))
+
+
 def test_the_same_physics_as_the_gymnasium_environment(env_id: str) -> None:
     """On the Gymnasium environment's own states and actions, the pure step gives its next state,
     observation, reward and termination reason (float64 here; the observation to float32)."""

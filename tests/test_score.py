@@ -379,6 +379,36 @@ def test_the_planning_baseline_reports_its_solve_time_and_is_never_a_residual_ba
         RunSpec("residual_ppo", "usv", "nominal", bases=("mpc",))
 
 
+def test_a_residual_base_is_read_from_its_cells_classical_runs_of_the_same_grid(tmp_path: Path,
+                                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """A grid with overrides gives them to every run: a residual agent's base comes from the cell's
+    finished classical runs of that grid, never from tuning the cell again."""
+    from vnhc_gym import sweep
+    from vnhc_gym.baselines import tuning
+
+    specs = sweep.grid(["usv"], ["nominal"], ["law", "tuned_law", "residual_ppo"], [0], 1000,
+                       overrides={"learning_rate": 1e-4})
+    (tmp_path / "runs").mkdir()
+    for spec, v in zip(specs[:2], (0.80, 0.85), strict=True):
+        side = {**_side(spec.algo, 0, [v] * 10, validation=v), "name": spec.stem, "settings": {"gain": v * 100}}
+        (tmp_path / "runs" / f"{spec.stem}.json").write_text(json.dumps(side))
+
+    def tune(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the cell was tuned again")
+
+    monkeypatch.setattr(tuning, "tune", tune)
+    assert sweep._best_classical(specs[2], tmp_path, "vnhc_gym/USVStream-v1") == ("tuned_law", {"gain": 85.0})
+
+
+def test_only_runs_that_compute_on_jax_ask_ray_for_a_gpu() -> None:
+    from vnhc_gym.sweep import RunSpec, gpus_of
+
+    for algo in ("law", "mpc", "ppo", "residual_ppo", "ppo_history"):
+        assert gpus_of(RunSpec(algo, "usv"), gpu_available=True) == 0, algo
+    assert gpus_of(RunSpec("sac", "usv"), gpu_available=True) == 1
+    assert gpus_of(RunSpec("residual_sac", "usv"), gpu_available=False) == 0
+
+
 def test_a_higher_mean_without_the_pairwise_majority_is_explained() -> None:
     """The boat under kicks in miniature: the law finishes three episodes in four with a high score
     and fails the fourth; an agent that finishes all of them at a lower level has the higher mean

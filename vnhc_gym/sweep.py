@@ -201,8 +201,9 @@ def _best_classical(spec: RunSpec, out: str | Path, env_id: str) -> tuple[str, d
     validation episodes, as they would be).  The planning baseline is never a base: it plans at
     every step of every training environment, which would make training hundreds of times slower."""
     candidates = spec.bases or tuple(a for a in CLASSICAL_ALGOS if a not in PLANNING_ALGOS)
-    cell = [RunSpec(a, spec.env, spec.scenario, test_episodes=spec.test_episodes, eval_episodes=spec.eval_episodes)
-            for a in candidates]
+    # The grid gives its classical runs the overrides it gives every run: the same stems, so found.
+    cell = [RunSpec(a, spec.env, spec.scenario, overrides=spec.overrides, test_episodes=spec.test_episodes,
+                    eval_episodes=spec.eval_episodes) for a in candidates]
     found = [Path(out) / "runs" / f"{c.stem}.json" for c in cell]
     if all(f.exists() for f in found):
         runs = [r for r in (json.loads(f.read_text()) for f in found) if not r.get("skipped")]
@@ -280,6 +281,23 @@ def run_sweep(specs: Iterable[RunSpec], out: str | Path, *, executor: str = "loc
     return result
 
 
+#: Runs that compute on JAX's default device (SBX's SAC): the only ones a GPU can serve.  The SB3
+#: runs train on the CPU (``device="cpu"``) and the classical baselines are numpy and numba.
+GPU_ALGOS = ("sac", "residual_sac")
+
+
+def _jax_sees_a_gpu() -> bool:
+    import jax
+
+    return any(d.platform == "gpu" for d in jax.devices())
+
+
+def gpus_of(spec: RunSpec, gpu_available: bool) -> int:
+    """The GPUs a run asks Ray for: one for a run that computes on JAX where JAX sees a GPU, else
+    none (a CPU run holding a GPU would keep a GPU run waiting for nothing)."""
+    return 1 if gpu_available and spec.algo in GPU_ALGOS else 0
+
+
 def _run_ray(todo: list[RunSpec], out: str, threads: int, address: str | None, retries: int,
              result: dict[str, list[str]], log: Callable[[str], None], t0: float,
              packages: Sequence[str] = ()) -> dict[str, list[str]]:
@@ -291,14 +309,9 @@ def _run_ray(todo: list[RunSpec], out: str, threads: int, address: str | None, r
     if started_here:
         ray.init(address=address or os.environ.get("RAY_ADDRESS"), include_dashboard=False, log_to_driver=False,
                  ignore_reinit_error=True)
-    try:
-        import torch
-
-        gpus = 1 if torch.cuda.is_available() else 0
-    except ImportError:  # pragma: no cover
-        gpus = 0
-    remote = ray.remote(num_cpus=threads, num_gpus=gpus, max_retries=retries, retry_exceptions=True)(run_one)
-    pending = {remote.remote(s, out, threads, packages): s for s in todo}
+    remote = ray.remote(num_cpus=threads, num_gpus=0, max_retries=retries, retry_exceptions=True)(run_one)
+    gpu = _jax_sees_a_gpu()
+    pending = {remote.options(num_gpus=gpus_of(s, gpu)).remote(s, out, threads, packages): s for s in todo}
     try:
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)

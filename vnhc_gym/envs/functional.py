@@ -214,6 +214,35 @@ class FunctionalEnv:
                 "truncated": truncated}
         return obs, state, out.reward, out.terminated, truncated, info
 
+    @partial(jax.jit, static_argnums=0)
+    def step_batch(self, key: Array, state: EnvState, action: Array, params: EnvParams | None = None
+                   ) -> tuple[Array, EnvState, Array, Array, Array, dict[str, Array]]:
+        """`step` for a batch of episodes (``state`` and ``action`` with a leading axis), the same
+        results, faster: the new episodes are drawn only on the steps where some episode ended.
+
+        Why: ``jax.vmap(step)`` draws a new episode for every row at every step and keeps it where
+        the row ended, since a batched branch runs both sides; drawing a start state costs more
+        than the step itself (3.3 times the boat's).  Here the branch is on the whole batch.
+        """
+        params = self.default_params if params is None else params
+        n = action.shape[0]
+        key_step, key_reset = jax.random.split(key)
+        new, out = jax.vmap(self.transition, in_axes=(0, 0, 0, None))(jax.random.split(key_step, n), state, action,
+                                                                     params)
+        truncated = jnp.logical_and(~out.terminated, new.time >= params.max_steps_in_episode)
+        done = jnp.logical_or(out.terminated, truncated)
+
+        def reset(_: None) -> tuple[Array, EnvState]:
+            obs_reset, state_reset = jax.vmap(self.initial, in_axes=(0, None))(jax.random.split(key_reset, n), params)
+            pick = partial(jax.vmap(jnp.where), done)
+            return pick(obs_reset, out.obs), jax.tree.map(pick, state_reset, new)
+
+        obs, state = jax.lax.cond(jnp.any(done), reset, lambda _: (out.obs, new), None)
+        info = {"phi": out.phi, "abs_phi": out.abs_phi, "abs_phi_sf": out.abs_phi_sf, "status": out.status,
+                "force": out.force, "final_observation": out.obs, "terminated": out.terminated,
+                "truncated": truncated}
+        return obs, state, out.reward, out.terminated, truncated, info
+
     # ------------------------------------------------------------------ the shared step
     def initial(self, key: Array, params: EnvParams) -> tuple[Array, EnvState]:
         """A new episode: the task's own random parameters, the mismatch of the uncertain ones, the

@@ -6,7 +6,7 @@ import argparse
 import json
 from dataclasses import fields
 
-from vnhc_gym.training.run import ALGOS, TrainConfig
+from vnhc_gym.training.run import ALGOS, BACKENDS, TrainConfig
 
 __all__ = ["add_arguments", "parse_key_values", "run"]
 
@@ -19,6 +19,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--env", default=d.env, help=f"a task name or env id (default {d.env}, the latest version)")
     parser.add_argument("--scenario", default=d.scenario, choices=list(SCENARIOS), help=f"(default {d.scenario})")
     parser.add_argument("--seed", type=int, default=d.seed, help=f"(default {d.seed})")
+    parser.add_argument("--seeds", type=int, nargs="+", default=None,
+                        help="several seeds, trained in one compiled program (backend jax); replaces --seed")
+    parser.add_argument("--backend", default=d.backend, choices=BACKENDS,
+                        help=f"sb3: Stable-Baselines3 or SBX; jax: compiled PPO (default {d.backend})")
     parser.add_argument("-n", "--n-timesteps", type=int, default=None,
                         help="training budget (default: the hyperparameter file's)")
     parser.add_argument("--out", default=d.out, help=f"output folder (default {d.out})")
@@ -57,12 +61,21 @@ def run(args: argparse.Namespace) -> int:
     cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in names and k not in ("overrides", "env_kwargs")},
                       overrides=parse_key_values(args.params),
                       env_kwargs=parse_key_values(args.env_kwargs, "--env-kwargs"))
-    meta = train(cfg, log=print)
-    summary = {"model": f"{cfg.out}/{meta['name']}.zip", "steps": meta["n_timesteps"],
-               "steps_per_second": round(meta["steps_per_second"])}
-    if meta["test"] is not None:  # --test-episodes 0 skips the test
-        test = meta["test"]["summary"]
-        summary.update({"test_score": test["score"], "test_success": test["success"],
-                        "test_mean_abs_phi_sf_iqm": test["mean_abs_phi_sf"]})
-    print(json.dumps(summary, indent=1))
+    if args.seeds is not None and cfg.backend != "jax":
+        raise SystemExit("--seeds trains several seeds in one program: it needs --backend jax (else one --seed a run)")
+    if args.seeds is not None:
+        from vnhc_gym.training.run_jax import train_seeds
+
+        metas = train_seeds(cfg, args.seeds, log=print)
+    else:
+        metas = [train(cfg, log=print)]
+    suffix = ".npz" if cfg.backend == "jax" else ".zip"
+    for meta in metas:
+        summary = {"model": f"{cfg.out}/{meta['name']}{suffix}", "steps": meta["n_timesteps"],
+                   "steps_per_second": round(meta["steps_per_second"])}
+        if meta["test"] is not None:  # --test-episodes 0 skips the test
+            test = meta["test"]["summary"]
+            summary.update({"test_score": test["score"], "test_success": test["success"],
+                            "test_mean_abs_phi_sf_iqm": test["mean_abs_phi_sf"]})
+        print(json.dumps(summary, indent=1))
     return 0

@@ -53,6 +53,8 @@ __all__ = ["ALGOS", "TrainConfig", "code_fingerprint", "resolve_env_id", "train"
 #: Algorithms of ``vnhc-gym train``, each with its RL Zoo file ``agents/hyperparams/<algo>.yml``.
 ALGOS = ("ppo", "residual_ppo", "recurrent_ppo", "sac", "residual_sac")
 SIDECAR_FORMAT = "vnhc_gym-agent/2"
+#: Training backends: Stable-Baselines3 (and SBX), or the compiled PPO (`vnhc_gym.training.ppo_jax`).
+BACKENDS = ("sb3", "jax")
 
 
 def resolve_env_id(env: str) -> str:
@@ -101,6 +103,9 @@ class TrainConfig:
     residual_base: str | None = None  #: the residual's base controller (a classical baseline's name)
     residual_base_settings: dict[str, Any] | None = None  #: its settings (gain, alpha, ...)
     name: str | None = None  #: file stem (default ``<task>-<scenario>-<algo>-s<seed>``)
+    #: ``"sb3"`` (Stable-Baselines3 / SBX on the native vector environment) or ``"jax"`` (PPO compiled
+    #: with the environment, `vnhc_gym.training.ppo_jax`)
+    backend: str = "sb3"
 
 
 def _stem(cfg: TrainConfig, env_id: str) -> str:
@@ -206,6 +211,18 @@ def _bound(agent: AgentPolicy, env_id: str, scenario: str) -> AgentPolicy:
     return agent.bind(gym.make(env_id, scenario=scenario))
 
 
+def hyperparams_of(cfg: TrainConfig, env_id: str) -> tuple[dict[str, Any], TrainConfig]:
+    """The run's hyperparameters (the algorithm's file, then ``cfg.overrides``) without the file's
+    ``env_kwargs``, and ``cfg`` with those under its own ``env_kwargs`` (RL Zoo's rule: they shape
+    the training environments only; the caller's win a clash)."""
+    hp = load_hyperparams(cfg.algo, env_id, cfg.hyperparams)
+    hp.update(cfg.overrides)
+    file_env_kwargs = hp.pop("env_kwargs", None) or {}
+    if not isinstance(file_env_kwargs, dict):
+        raise ValueError(f"the hyperparameter file's env_kwargs must be a mapping, got {file_env_kwargs!r}")
+    return hp, replace(cfg, env_kwargs={**file_env_kwargs, **cfg.env_kwargs})
+
+
 def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = None,
           on_validation: Callable[[dict[str, float]], None] | None = None, **kwargs: Any) -> dict[str, Any]:
     """Train one agent (see the module docstring) and return its sidecar.
@@ -215,26 +232,28 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
     ``on_validation`` gets each validation's point of the learning curve (``steps``, ``score``, ...)
     and may raise to stop the run (a hyperparameter search prunes a trial this way).  With
     ``test_episodes=0`` nothing is tested (the sidecar's ``test`` is ``None``): how a search that
-    must never see the test episodes trains.
+    must never see the test episodes trains.  ``backend="jax"`` trains PPO compiled with its
+    environment (`vnhc_gym.training.run_jax`, which also trains several seeds in one program).
     """
-    import torch
-
     cfg = cfg or TrainConfig(**kwargs)
     if cfg.algo not in ALGOS:
         raise ValueError(f"algo must be one of {list(ALGOS)}, got {cfg.algo!r}")
+    if cfg.backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {list(BACKENDS)}, got {cfg.backend!r}")
     if isinstance(cfg.test_episodes, bool) or not isinstance(cfg.test_episodes, int) or cfg.test_episodes < 0:
         raise ValueError(f"test_episodes must be a non-negative integer, got {cfg.test_episodes!r}")
     if isinstance(cfg.threads, bool) or not isinstance(cfg.threads, int) or cfg.threads < 1:
         raise ValueError(f"threads must be a positive integer, got {cfg.threads!r}")
-    torch.set_num_threads(cfg.threads)
     env_id = resolve_env_id(cfg.env)
-    hp = load_hyperparams(cfg.algo, env_id, cfg.hyperparams)
-    hp.update(cfg.overrides)
-    # A file's env_kwargs shape the training environments only, as in RL Zoo; the caller's win a clash.
-    file_env_kwargs = hp.pop("env_kwargs", None) or {}
-    if not isinstance(file_env_kwargs, dict):
-        raise ValueError(f"the hyperparameter file's env_kwargs must be a mapping, got {file_env_kwargs!r}")
-    cfg = replace(cfg, env_kwargs={**file_env_kwargs, **cfg.env_kwargs})
+    if cfg.backend == "jax":
+        # Imported here: the compiled trainer needs neither torch nor SB3, and this module's helpers.
+        from vnhc_gym.training.run_jax import train_seeds
+
+        return train_seeds(cfg, [cfg.seed], log=log, on_validation=on_validation)[0]
+    import torch
+
+    torch.set_num_threads(cfg.threads)
+    hp, cfg = hyperparams_of(cfg, env_id)
     n_envs = int(hp.pop("n_envs", 8))
     n_timesteps = int(cfg.n_timesteps if cfg.n_timesteps is not None else hp.pop("n_timesteps", 1e6))
     hp.pop("n_timesteps", None)

@@ -1,0 +1,191 @@
+"""Training runs on the compiled PPO (`vnhc_gym.training.ppo_jax`): several seeds in one program,
+validated while they learn and tested on held-out episodes, with the files of an SB3 run.
+
+``vnhc-gym train --backend jax --algo ppo --env usv --seeds 0 1 2`` (or `train_seeds`) trains the
+seeds side by side (``jax.vmap`` over their keys), in chunks of iterations between validations.
+Each seed writes what an SB3 run writes, under the same stem (``<task>-<scenario>-ppo-s<seed>``):
+
+* ``<stem>.npz``: the networks with the best validation score, ``<stem>-final.npz`` those at the
+  end.  The arrays are named ``pi.<i>.w``, ``pi.<i>.b`` (hidden layers), ``pi_out.w``,
+  ``pi_out.b``, ``log_std``, and the same for the value network (``vf``); the action is
+  ``clip(pi_out(act(...act(obs @ pi.0.w + pi.0.b)...)), -1, 1)`` with the sidecar's ``activation``.
+  No pickles: `load_agent` loads one from anywhere without a warning;
+* ``<stem>.json``: the sidecar, as SB3 runs have it, with ``backend: "jax"``; its
+  ``steps_per_second`` counts all seeds of the program and the compilation (``compile_wall``),
+  ``steps_per_second_compiled`` leaves the compilation out.
+
+Validation episodes are drawn by the functional environment with the keys
+``jax.random.key(VALIDATION_SEED + i)`` (the Gymnasium environment's streams differ, so they are
+other episodes of the same distribution); the test runs the best networks on the Gymnasium
+environment's test seeds with `evaluate`, exactly as for an SB3 run, so that both backends' test
+scores are comparable.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from numpy.typing import NDArray
+
+import vnhc_gym
+from vnhc_gym.envs.functional import make_jax
+from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate
+from vnhc_gym.training import ppo_jax as P
+from vnhc_gym.training.run import SIDECAR_FORMAT, _jsonable, _stem, code_fingerprint, hyperparams_of, resolve_env_id
+
+__all__ = ["JaxActor", "train_seeds"]
+
+#: The time the validation and test episodes last (s): `evaluate`'s default horizon.
+EPISODE_TIME = 20.0
+_NUMPY_ACTIVATIONS: dict[str, Callable[[Any], Any]] = {
+    "Tanh": np.tanh, "ReLU": lambda x: np.maximum(x, 0.0), "ELU": lambda x: np.where(x > 0, x, np.expm1(x)),
+    "LeakyReLU": lambda x: np.where(x > 0, x, 0.01 * x), "SiLU": lambda x: x / (1.0 + np.exp(-x))}
+
+
+class JaxActor:
+    """A compiled PPO's policy network in numpy (what `load_agent` returns inside an `AgentPolicy`).
+
+    ``predict(obs) -> (action, None)``: the deterministic action, the network's mean clipped to
+    ``[-1, 1]``, for one observation or a batch (SB3's interface).
+    """
+
+    def __init__(self, arrays: dict[str, NDArray[np.float32]], activation: str = "Tanh") -> None:
+        if activation not in _NUMPY_ACTIVATIONS:
+            raise ValueError(f"activation must be one of {sorted(_NUMPY_ACTIVATIONS)}, got {activation!r}")
+        hidden = sorted({int(k.split(".")[1]) for k in arrays if k.startswith("pi.")})
+        if hidden != list(range(len(hidden))) or "pi_out.w" not in arrays:
+            raise ValueError(f"not a compiled PPO's networks: arrays {sorted(arrays)}")
+        self.layers = [(np.asarray(arrays[f"pi.{i}.w"], np.float32), np.asarray(arrays[f"pi.{i}.b"], np.float32))
+                       for i in hidden]
+        self.out = (np.asarray(arrays["pi_out.w"], np.float32), np.asarray(arrays["pi_out.b"], np.float32))
+        self.log_std = np.asarray(arrays["log_std"], np.float32)
+        self.act = _NUMPY_ACTIVATIONS[activation]
+
+    @classmethod
+    def load(cls, path: str | Path, activation: str = "Tanh") -> JaxActor:
+        with np.load(path, allow_pickle=False) as data:
+            return cls({k: data[k] for k in data.files}, activation)
+
+    def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[NDArray[np.float32], Any]:
+        x = np.asarray(observation, dtype=np.float32)
+        for w, b in self.layers:
+            x = self.act(x @ w + b)
+        mean = x @ self.out[0] + self.out[1]
+        if not deterministic:
+            mean = mean + np.exp(self.log_std) * np.random.default_rng().standard_normal(mean.shape)
+        return np.clip(mean, -1.0, 1.0).astype(np.float32), state
+
+
+def _save(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Written whole or not at all: a run stopped mid-write never leaves a truncated checkpoint."""
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, **arrays)  # type: ignore[arg-type]  # numpy's stubs take the names for its own keywords
+    os.replace(tmp, path)
+
+
+def train_seeds(cfg: Any, seeds: Sequence[int], log: Callable[[str], None] | None = None,
+                on_validation: Callable[[dict[str, float]], None] | None = None) -> list[dict[str, Any]]:
+    """Train ``cfg`` (a `TrainConfig` with ``algo="ppo"``) once per seed, all seeds in one compiled
+    program, and return the sidecars in the order of ``seeds``.
+
+    ``on_validation`` gets each validation point of the first seed (as `train`'s).  Seed ``s``
+    draws its networks and episodes from ``jax.random.key(s)``, so a seed gives the same run alone
+    or beside others.
+    """
+    # One XLA thread, as one torch thread for SB3 (effective if JAX has not run anything yet): the
+    # update is compute-bound and a second thread did not speed one run up (experiments/bench_train.py).
+    os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
+    if cfg.algo != "ppo":
+        raise ValueError(f"backend 'jax' trains algo 'ppo' only, got {cfg.algo!r} (use backend 'sb3')")
+    seeds = [int(s) for s in seeds]
+    if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
+        raise ValueError(f"seeds must be distinct non-negative integers, got {seeds}")
+    env_id = resolve_env_id(cfg.env)
+    hp, cfg = hyperparams_of(cfg, env_id)
+    if cfg.n_timesteps is not None:
+        hp["n_timesteps"] = int(cfg.n_timesteps)
+    settings = P.settings_from(hp, f"{cfg.algo} hyperparameters of {env_id}")
+    env, env_params = make_jax(env_id, cfg.scenario, **cfg.env_kwargs)
+    val_env, val_params = make_jax(env_id, cfg.scenario)
+    horizon = max(1, round(EPISODE_TIME / float(val_params.dt)))
+    val_keys = jnp.stack([jax.random.key(VALIDATION_SEED + i) for i in range(cfg.eval_episodes)])
+    n_iter = settings.n_iterations
+    chunk = max(1, math.ceil(n_iter / max(1, cfg.eval_points)))
+    out_dir = Path(cfg.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    run_chunk = jax.jit(jax.vmap(lambda ts: P.iterations(env, env_params, settings, ts, chunk)))
+    validate = jax.jit(jax.vmap(lambda p: P.validation_scores(val_env, val_params, p, val_keys, settings.activation,
+                                                              horizon)))
+    stems = [_stem(replace(cfg, seed=s), env_id) for s in seeds]
+    metas = [{"format": SIDECAR_FORMAT, "backend": "jax", "name": stem, "algo": cfg.algo, "env_id": env_id,
+              "scenario": cfg.scenario, "seed": s, "n_envs": settings.n_envs, "n_timesteps": settings.n_timesteps,
+              "config": {**asdict(cfg), "seed": s}, "hyperparams": _jsonable(hp), "policy": "MlpPolicy",
+              "activation": settings.activation, "normalize": _jsonable(hp.get("normalize", False)),
+              "residual": None, "version": vnhc_gym.__version__, "code": code_fingerprint(), "obs_rms": None,
+              "frame_stack": 1, "checkpoint_format": "npz: pi.<i>.w/b, pi_out.w/b, log_std, vf.<i>.w/b, vf_out.w/b"}
+             for s, stem in zip(seeds, stems, strict=True)]
+    curves: list[list[dict[str, float]]] = [[] for _ in seeds]
+    best = [-math.inf] * len(seeds)
+    t_start = time.perf_counter()
+    t_eval = 0.0
+
+    def check(ts: Any) -> None:
+        nonlocal t_eval
+        t0 = time.perf_counter()
+        scores, alive = (np.asarray(x, dtype=np.float64) for x in validate(ts.params))
+        steps = int(np.asarray(ts.iteration)[0]) * settings.rollout
+        params = jax.device_get(ts.params)
+        for i, meta in enumerate(metas):
+            point = {"steps": steps, "wall": t0 - t_start - t_eval, "score": float(scores[i].mean()),
+                     "success": float(alive[i].mean())}
+            curves[i].append(point)
+            if log is not None:
+                log(f"{meta['name']}: {steps:>9d} steps, {point['wall']:6.0f} s: validation score "
+                    f"{point['score']:.4f} (success {point['success']:.2f})")
+            if point["score"] > best[i]:  # strictly better only: at a tie the earlier stays
+                best[i] = point["score"]
+                _save(out_dir / f"{meta['name']}.npz", P.to_numpy(jax.tree.map(lambda x, i=i: x[i], params)))
+                meta["best_steps"] = steps
+        t_eval += time.perf_counter() - t0
+        if on_validation is not None:
+            on_validation(curves[0][-1])
+
+    ts = P.init(jnp.stack([jax.random.key(s) for s in seeds]), env, env_params, settings)
+    check(ts)
+    t0 = time.perf_counter()
+    step_chunk = run_chunk.lower(ts).compile()
+    compile_wall = time.perf_counter() - t0
+    while int(np.asarray(ts.iteration)[0]) < n_iter:
+        ts, _ = step_chunk(ts)
+        jax.block_until_ready(ts)  # else the chunk's time would be counted in the validation's
+        check(ts)
+    train_wall = time.perf_counter() - t_start - t_eval
+    params = jax.device_get(ts.params)
+    for i, meta in enumerate(metas):
+        _save(out_dir / f"{meta['name']}-final.npz", P.to_numpy(jax.tree.map(lambda x, i=i: x[i], params)))
+        test = None
+        if cfg.test_episodes > 0:  # the test: the best validated networks, on the held-out seeds
+            from vnhc_gym.training.agents import AgentPolicy
+
+            agent = AgentPolicy(JaxActor.load(out_dir / f"{meta['name']}.npz", settings.activation), meta)
+            result = evaluate(agent, env_id, cfg.scenario, n_episodes=cfg.test_episodes, seed=TEST_SEED)
+            test = {k: v for k, v in result.to_dict().items() if k in ("metrics", "summary", "seed", "n_episodes")}
+        steps = int(np.asarray(ts.iteration)[i]) * settings.rollout
+        meta.update({"curve": curves[i], "train_wall": train_wall, "compile_wall": compile_wall, "eval_wall": t_eval,
+                     "seeds_in_program": len(seeds), "steps_per_second": len(seeds) * steps / max(train_wall, 1e-9),
+                     "steps_per_second_compiled": len(seeds) * steps / max(train_wall - compile_wall, 1e-9),
+                     "test": test})
+        (out_dir / f"{meta['name']}.json").write_text(json.dumps(_jsonable(meta), indent=1))
+    return metas
