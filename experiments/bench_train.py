@@ -119,7 +119,7 @@ def main() -> None:
     args = ap.parse_args()
     side = []
     for task in (("usv",) if args.quick else TASKS):
-        side += backends(task, 32_768 if args.quick else 983_040, 2 if args.quick else 5)
+        side += backends(task, 16_384 if args.quick else 983_040, 2 if args.quick else 5)
         for r in side[-3:]:
             print(f"{task:10s} {r['backend']:4s} seeds={r['seeds']}  {r['steps_per_s'] / 1e3:7.1f} k env-steps/s "
                   f"(compilation {r['compile_s']:4.1f} s; without it {r['steps_per_s_compiled'] / 1e3:7.1f} k)",
@@ -138,8 +138,8 @@ def main() -> None:
         (out / "bench_backends.md").write_text("\n".join(table) + "\n")
         print("\n".join(table))
         return
-    steps = 16384 if args.quick else 196_608
-    sizes = [8, 64] if args.quick else [8, 64, 256, 1024]
+    steps = 8192 if args.quick else 196_608
+    sizes = [8] if args.quick else [8, 64, 256, 1024]
     rows = []
     for task in ("flocking", "usv"):
         for n in sizes:
@@ -152,7 +152,7 @@ def main() -> None:
     together = []
     for threads in ((1,) if args.quick else (1, 2)):
         for jobs in (1, 2):
-            together.append(concurrent(jobs, threads, 32_768 if args.quick else 300_000))
+            together.append(concurrent(jobs, threads, 16_384 if args.quick else 300_000))
             r = together[-1]
             print(f"{jobs} x vnhc-gym train, {threads} torch thread(s) each: {r['wall']:6.1f} s", flush=True)
     (out / "bench_train.json").write_text(json.dumps({"backends": side, "throughput": rows, "concurrent": together},

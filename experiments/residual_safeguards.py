@@ -38,8 +38,8 @@ VARIANTS: dict[str, tuple[float, float, float]] = {
 def one(variant: str, env: str, scenario: str, base: str, seed: int, steps: int, out: str) -> dict[str, Any]:
     from vnhc_gym.benchmark import settings
     from vnhc_gym.training import TrainConfig, train
+    from vnhc_gym.training.config import resolve_env_id
     from vnhc_gym.training.hyperparams import load_hyperparams
-    from vnhc_gym.training.run import resolve_env_id
 
     warmup, scale, log_std = VARIANTS[variant]
     hp = load_hyperparams("residual_ppo", resolve_env_id(env))

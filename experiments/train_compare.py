@@ -17,6 +17,7 @@ learning curves, the verdict figure, a performance profile) to ``<out>/report``.
     python experiments/train_compare.py --quick               # a few minutes: every task, the pipeline end to end
     python experiments/train_compare.py --large --out results/large   # more seeds, longer budgets
     python experiments/train_compare.py --learners ppo residual_ppo ppo_history sac residual_sac   # SAC too
+    python experiments/train_compare.py --learners ppo --backend jax   # compiled PPO, beside SB3's in the report
     python experiments/train_compare.py --executor ray --address <head>:6379   # on a cluster
     python experiments/train_compare.py --publish docs/results/train_compare   # copy the report there
     python experiments/train_compare.py --records docs/results/train_compare/runs.jsonl.gz   # continue it
@@ -71,6 +72,9 @@ def main() -> None:
     ap.add_argument("--algos", nargs="+", choices=[*CLASSICAL, *LEARNED_ALGOS, *PLANNING_ALGOS],
                     help="run only these algorithms of the grid (the same runs, so a later full run skips them); "
                          "the report covers every finished run")
+    ap.add_argument("--backend", choices=["sb3", "jax"], default="sb3",
+                    help="where PPO from scratch trains: sb3, or jax (compiled with its environment, a cell's seeds "
+                         "in one program; reported as ppo-jax beside sb3's ppo); the other learners train on sb3")
     ap.add_argument("--out", default="results/train_compare")
     ap.add_argument("--executor", choices=["local", "ray"], default="local")
     ap.add_argument("--address", default=None)
@@ -99,7 +103,7 @@ def main() -> None:
         for learner in args.learners:
             budget = BUDGETS.get(learner, GRID["n_timesteps"]) * size["n_timesteps"] // GRID["n_timesteps"]
             specs += grid(tasks, GRID["scenarios"], [learner], list(LARGE["seeds"]) if args.large else [0], budget,
-                          seeds_by_scenario=seeds)
+                          seeds_by_scenario=seeds, backend=args.backend)
         specs += grid(tasks, PLANNING["scenarios"], PLANNING["algos"], [0], size["n_timesteps"])
         jobs = args.jobs
     if args.algos:

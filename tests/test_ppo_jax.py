@@ -136,7 +136,7 @@ def test_the_numpy_actor_is_the_networks_mean_clipped() -> None:
 @pytest.fixture(scope="module")
 def usv_runs(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """Two seeds trained in one program and the second alone, 5 iterations each (81 920 steps)."""
-    from vnhc_gym.training.run import TrainConfig
+    from vnhc_gym.training.config import TrainConfig
     from vnhc_gym.training.run_jax import train_seeds
 
     out = tmp_path_factory.mktemp("ppo_jax")
@@ -190,12 +190,16 @@ def test_the_jax_backend_refuses_what_it_does_not_train() -> None:
 
     with pytest.raises(ValueError, match="backend must be one of"):
         train(TrainConfig(backend="tf"))
-    with pytest.raises(ValueError, match="trains algo 'ppo' only"):
+    with pytest.raises(ValueError, match=r"trains \['ppo'\] only"):
         train(TrainConfig(algo="sac", backend="jax"))
     from vnhc_gym.training.run_jax import train_seeds
 
     with pytest.raises(ValueError, match="distinct"):
         train_seeds(TrainConfig(backend="jax"), [1, 1])
+    with pytest.raises(ValueError, match="one file stem for 2 seeds"):
+        train_seeds(TrainConfig(backend="jax", name="mine"), [0, 1])
+    with pytest.raises(ValueError, match="its own stem"):
+        train_seeds(TrainConfig(backend="jax"), [0, 1], names=["a", "a"])
 
 
 def test_seeds_on_the_command_line_need_the_jax_backend() -> None:

@@ -362,8 +362,8 @@ def test_the_planning_baseline_reports_its_solve_time_and_is_never_a_residual_ba
     """MPC can be a cell's best classical baseline (it is fielded as it is), its solve time sits beside
     its score, and a residual agent's base is the best of the others (MPC would plan at every step of
     every training environment)."""
-    from vnhc_gym import sweep
     from vnhc_gym.sweep import RunSpec
+    from vnhc_gym.sweep.execute import _best_classical
 
     scores = {"law": 0.80, "tuned_law": 0.85, "observer": 0.83, "adaptive": 0.84, "mpc": 0.90}
     sides = [{**_side(algo, 0, [v] * 10, validation=v), "name": RunSpec(algo, "usv", "nominal").stem}
@@ -373,7 +373,7 @@ def test_the_planning_baseline_reports_its_solve_time_and_is_never_a_residual_ba
     assert rows["law"]["best_classical"] == "mpc" and rows["mpc"]["solve_ms_per_step"] == pytest.approx(25.0)
     assert "mpc (best) (25 ms/step)" in (tmp_path / "report" / "comparison.md").read_text()
     spec = RunSpec("residual_ppo", "usv", "nominal", bases=("law", "tuned_law", "observer", "adaptive"))
-    base, settings = sweep._best_classical(spec, tmp_path, "vnhc_gym/USVStream-v1")
+    base, settings = _best_classical(spec, tmp_path, "vnhc_gym/USVStream-v1")
     assert base == "tuned_law" and settings == {"gain": 5.0}
     with pytest.raises(ValueError, match="bases"):
         RunSpec("residual_ppo", "usv", "nominal", bases=("mpc",))
@@ -385,6 +385,7 @@ def test_a_residual_base_is_read_from_its_cells_classical_runs_of_the_same_grid(
     finished classical runs of that grid, never from tuning the cell again."""
     from vnhc_gym import sweep
     from vnhc_gym.baselines import tuning
+    from vnhc_gym.sweep.execute import _best_classical
 
     specs = sweep.grid(["usv"], ["nominal"], ["law", "tuned_law", "residual_ppo"], [0], 1000,
                        overrides={"learning_rate": 1e-4})
@@ -397,7 +398,7 @@ def test_a_residual_base_is_read_from_its_cells_classical_runs_of_the_same_grid(
         raise AssertionError("the cell was tuned again")
 
     monkeypatch.setattr(tuning, "tune", tune)
-    assert sweep._best_classical(specs[2], tmp_path, "vnhc_gym/USVStream-v1") == ("tuned_law", {"gain": 85.0})
+    assert _best_classical(specs[2], tmp_path, "vnhc_gym/USVStream-v1") == ("tuned_law", {"gain": 85.0})
 
 
 def test_only_runs_that_compute_on_jax_ask_ray_for_a_gpu() -> None:

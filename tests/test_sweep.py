@@ -23,6 +23,7 @@ pytest.importorskip("stable_baselines3")
 
 import vnhc_gym.evaluation  # noqa: E402
 import vnhc_gym.evaluation.protocol  # noqa: E402
+import vnhc_gym.sweep.execute  # noqa: E402
 from vnhc_gym import stats, sweep  # noqa: E402
 from vnhc_gym.baselines import GeometricController  # noqa: E402
 from vnhc_gym.baselines.tuning import CLASSICAL  # noqa: E402
@@ -96,6 +97,28 @@ def test_grid_and_run_specs() -> None:
     assert law.key() != RunSpec("law", "usv", test_episodes=5).key()
     with pytest.raises(ValueError, match="algo"):
         RunSpec("td3", "usv")
+
+
+def test_a_compiled_run_is_its_own_entry_and_its_cells_seeds_one_unit() -> None:
+    from vnhc_gym.sweep.execute import gpus_of, units
+    from vnhc_gym.sweep.specs import algo_of
+
+    sb3 = RunSpec("ppo", "usv", seed=1, n_timesteps=10)
+    jx = RunSpec("ppo", "usv", seed=1, n_timesteps=10, backend="jax")
+    assert jx.stem.startswith("usv-nominal-ppo-jax-s1-") and jx.key() != sb3.key()
+    assert (jx.label, sb3.label) == ("ppo-jax", "ppo") and algo_of(jx.label) == algo_of(sb3.label) == "ppo"
+    assert algo_of("residual_ppo") == "residual_ppo"
+    with pytest.raises(ValueError, match=r"trains \['ppo'\] only"):
+        RunSpec("residual_ppo", "usv", backend="jax")
+    with pytest.raises(ValueError, match="backend must be one of"):
+        RunSpec("ppo", "usv", backend="torch")
+    specs = grid(["usv", "sled"], ["nominal"], ["law", "ppo"], [0, 1, 2], 10, backend="jax")
+    assert {s.backend for s in specs if s.algo == "law"} == {"sb3"}  # a classical run has no backend
+    groups = units(specs)
+    assert [[s.stem for s in u] for u in groups if len(u) > 1] == [
+        [s.stem for s in specs if s.env == env and s.algo == "ppo"] for env in ("usv", "sled")]
+    assert sum(map(len, groups)) == len(specs) and len(groups) == 4
+    assert gpus_of(jx, True) == 1 and gpus_of(sb3, True) == 0 and gpus_of(jx, False) == 0
 
 
 # --------------------------------------------------------------------------- a sweep end to end
@@ -178,6 +201,27 @@ def test_report_files_and_numbers(swept: Any, tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+def test_a_compiled_cell_trains_its_seeds_in_one_program_and_is_reported_beside_sb3(
+        swept: Any, tmp_path: Path) -> None:
+    out = _copy(swept[0], tmp_path)
+    specs = grid(ENVS[:1], ["nominal"], ["ppo"], [0, 1], 2048, overrides=TINY, test_episodes=3, eval_episodes=3,
+                 backend="jax")
+    lines: list[str] = []
+    result = run_sweep(specs, out, log=lines.append)
+    assert sorted(result["done"]) == sorted(s.stem for s in specs)
+    metas = [json.loads((out / "runs" / f"{s.stem}.json").read_text()) for s in specs]
+    assert all(m["seeds_in_program"] == 2 and m["sweep_algo"] == "ppo-jax" and m["backend"] == "jax" for m in metas)
+    assert [m["spec"]["seed"] for m in metas] == [0, 1] and metas[0]["curve"] != metas[1]["curve"]
+    assert all((out / "runs" / f"{s.stem}.npz").is_file() for s in specs)
+    rows = report(out, reps=200, log=lines.append)["rows"]
+    by = {(r["env"], r["algo"]): r for r in rows}
+    jax_row, sb3_row = by[(ENVS[0], "ppo-jax")], by[(ENVS[0], "ppo")]
+    assert jax_row["kind"] == sb3_row["kind"] == "learned" and jax_row["runs"] == sb3_row["runs"] == 2
+    pooled = np.concatenate([_test_metrics(out, s)["score"] for s in specs])
+    assert jax_row["score"] == pytest.approx(float(np.mean(pooled)), rel=1e-12) and "poi" in jax_row
+
+
+@pytest.mark.slow
 def test_report_warns_about_mixed_code_versions(swept: Any, tmp_path: Path) -> None:
     out = _copy(swept[0], tmp_path)
     side = next((out / "runs").glob("*.json"))
@@ -196,7 +240,7 @@ def test_rerunning_does_no_training(swept: Any, tmp_path: Path, monkeypatch: pyt
     specs = swept[1]
     before = {p.name: p.stat().st_mtime_ns for p in (out / "runs").iterdir()}
     calls = _Calls(sweep.run_one, refuse=True)
-    monkeypatch.setattr(sweep, "run_one", calls)
+    monkeypatch.setattr(vnhc_gym.sweep.execute, "run_one", calls)  # where run_sweep looks it up
     result = run_sweep(specs, out, log=lambda s: None)
     assert calls.stems == [] and result["done"] == [] and result["failed"] == []
     assert sorted(result["skipped"]) == sorted(s.stem for s in specs)
@@ -210,7 +254,7 @@ def test_rerunning_does_no_training(swept: Any, tmp_path: Path, monkeypatch: pyt
 def test_a_failed_run_is_retried_alone(swept: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     out = _copy(swept[0], tmp_path)
     calls = _Calls(sweep.run_one)
-    monkeypatch.setattr(sweep, "run_one", calls)
+    monkeypatch.setattr(vnhc_gym.sweep.execute, "run_one", calls)  # where run_sweep looks it up
     result = run_sweep([*swept[1], _bad_spec()], out, log=lambda s: None)
     assert calls.stems == [_bad_spec().stem] and result["failed"] == [_bad_spec().stem]
 
@@ -224,7 +268,7 @@ def test_deleting_a_sidecar_reruns_only_that_run(swept: Any, tmp_path: Path, mon
     (out / "runs" / f"{victim.stem}.json").unlink()
     assert status(victim, out) == "todo"
     calls = _Calls(sweep.run_one)
-    monkeypatch.setattr(sweep, "run_one", calls)
+    monkeypatch.setattr(vnhc_gym.sweep.execute, "run_one", calls)  # where run_sweep looks it up
     result = run_sweep(specs, out, log=lambda s: None)
     assert calls.stems == [victim.stem] and result["done"] == [victim.stem]
     assert status(victim, out) == "done"

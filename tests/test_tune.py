@@ -96,10 +96,30 @@ def test_a_classical_study_scores_its_winner_on_validation_episodes(tmp_path: Pa
 @pytest.mark.parametrize(("field", "value", "match"), [
     ("algo", "td3", "algo must be one of"), ("trials", 0, "trials must be a positive integer"),
     ("n_timesteps", 1.5, "n_timesteps must be a positive integer"), ("repeats", True, "repeats"),
+    ("backend", "tf", "backend must be one of"), ("backend", "jax", r"trains \['ppo'\]; 'sac' trains with"),
 ])
 def test_bad_configuration_is_refused_by_name(tmp_path: Path, field: str, value: Any, match: str) -> None:
+    algo = {"algo": "sac"} if field == "backend" else {}
     with pytest.raises(ValueError, match=match):
-        tune(TuneConfig(out=str(tmp_path), **{field: value}), log=None)
+        tune(TuneConfig(out=str(tmp_path), **{field: value, **algo}), log=None)
+
+
+@pytest.mark.slow
+def test_a_study_on_the_compiled_backend_writes_a_file_the_compiled_trainer_reads(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import vnhc_gym.training.run_jax as run_jax
+    from vnhc_gym.training.ppo_jax import settings_from
+
+    tested: list[Any] = []
+    monkeypatch.setattr(run_jax, "evaluate", lambda *a, **k: tested.append(k))  # the Gymnasium test episodes
+    summary = tune(TuneConfig(algo="ppo", env="usv", trials=1, n_timesteps=4096, eval_points=1, eval_episodes=2,
+                              out=str(tmp_path), backend="jax"), log=None)
+    assert summary["n_trials"] == 1 and not tested
+    assert all(t["value"] is not None and 0.0 <= t["value"] <= 1.0 for t in summary["trials"])
+    hp = load_hyperparams("ppo", "vnhc_gym/USVStream-v1", tmp_path / "usv-nominal" / "ppo.yml")
+    settings = settings_from(hp, "the winner")
+    assert settings.learning_rate == summary["best_params"]["learning_rate"]
+    assert settings.net_arch == (summary["best_params"]["width"],) * 2
 
 
 @pytest.mark.parametrize(("choice", "expected"), [("auto", -1.0), ("-5", -5.0)])

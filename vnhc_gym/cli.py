@@ -13,7 +13,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "benchmark": ("vnhc_gym.benchmark", "Evaluate baselines (and shipped agents) on every env and scenario."),
     "train": ("vnhc_gym.training.cli", "Train one agent (PPO, residual PPO, recurrent PPO, SAC, residual SAC)."),
     "tune": ("vnhc_gym.training.tune", "Search hyperparameters or gains with Optuna (validation episodes only)."),
-    "sweep": ("vnhc_gym.sweep", "Run a grid of training and evaluation runs (locally or on Ray) and report."),
+    "sweep": ("vnhc_gym.sweep.cli", "Run a grid of training and evaluation runs (locally or on Ray) and report."),
     "reproduce": ("vnhc_gym.paper", "Regenerate the figures of the original paper's Section IV."),
 }
 

@@ -6,7 +6,7 @@ import argparse
 import json
 from dataclasses import fields
 
-from vnhc_gym.training.run import ALGOS, BACKENDS, TrainConfig
+from vnhc_gym.training.config import ALGOS, BACKENDS, TrainConfig
 
 __all__ = ["add_arguments", "parse_key_values", "run"]
 

@@ -32,85 +32,31 @@ cases).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import vnhc_gym
 from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate
-from vnhc_gym.tasks import env_id as task_env_id
-from vnhc_gym.tasks import task_of_env_id
 from vnhc_gym.training.agents import AgentPolicy, algorithm_class
-from vnhc_gym.training.hyperparams import load_hyperparams, make_schedule
+from vnhc_gym.training.config import (
+    ALGOS,
+    BACKENDS,
+    SIDECAR_FORMAT,
+    TrainConfig,
+    code_fingerprint,
+    hyperparams_of,
+    jsonable,
+    resolve_env_id,
+    run_stem,
+)
+from vnhc_gym.training.hyperparams import make_schedule
 
-__all__ = ["ALGOS", "TrainConfig", "code_fingerprint", "resolve_env_id", "train"]
-
-#: Algorithms of ``vnhc-gym train``, each with its RL Zoo file ``agents/hyperparams/<algo>.yml``.
-ALGOS = ("ppo", "residual_ppo", "recurrent_ppo", "sac", "residual_sac")
-SIDECAR_FORMAT = "vnhc_gym-agent/2"
-#: Training backends: Stable-Baselines3 (and SBX), or the compiled PPO (`vnhc_gym.training.ppo_jax`).
-BACKENDS = ("sb3", "jax")
-
-
-def resolve_env_id(env: str) -> str:
-    """A task name (``"usv"``), an environment name (``"USVStream"``) or a full id -> the full id
-    (the latest version unless the id names one)."""
-    if env.startswith("vnhc_gym/") and "-v" in env:
-        task_of_env_id(env)
-        return env
-    return task_env_id(task_of_env_id(env).name)
-
-
-def code_fingerprint() -> str:
-    """sha256 (first 16 hex digits) of the package's Python sources and hyperparameter files: runs
-    with different fingerprints may not give the same numbers."""
-    root = Path(vnhc_gym.__file__).resolve().parent
-    h = hashlib.sha256()
-    files = sorted(root.rglob("*.py"))
-    from vnhc_gym.training.hyperparams import hyperparams_dir
-
-    files += sorted(hyperparams_dir().glob("*.yml"))
-    for f in files:
-        h.update(f.name.encode())
-        h.update(f.read_bytes())
-    return h.hexdigest()[:16]
-
-
-@dataclass
-class TrainConfig:
-    """One run's configuration (also the command line of ``vnhc-gym train``)."""
-
-    algo: str = "ppo"
-    env: str = "usv"
-    scenario: str = "nominal"
-    seed: int = 0
-    n_timesteps: int | None = None  #: default: the hyperparameter file's
-    out: str = "runs"
-    eval_points: int = 20  #: validation evaluations over the run (plus one at step 0)
-    eval_episodes: int = 10  #: validation episodes per evaluation (seeds from VALIDATION_SEED)
-    test_episodes: int = 20  #: test episodes at the end (seeds from TEST_SEED)
-    threads: int = 1  #: torch threads: 1 never oversubscribes the cores (experiments/bench_train.py)
-    hyperparams: str | None = None  #: another RL Zoo file for the algorithm
-    overrides: dict[str, Any] = field(default_factory=dict)  #: hyperparameters that replace the file's
-    #: Environment arguments of the training envs only, over the file's ``env_kwargs`` (as RL Zoo's ``--env-kwargs``)
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    progress_bar: bool = False
-    residual_base: str | None = None  #: the residual's base controller (a classical baseline's name)
-    residual_base_settings: dict[str, Any] | None = None  #: its settings (gain, alpha, ...)
-    name: str | None = None  #: file stem (default ``<task>-<scenario>-<algo>-s<seed>``)
-    #: ``"sb3"`` (Stable-Baselines3 / SBX on the native vector environment) or ``"jax"`` (PPO compiled
-    #: with the environment, `vnhc_gym.training.ppo_jax`)
-    backend: str = "sb3"
-
-
-def _stem(cfg: TrainConfig, env_id: str) -> str:
-    return cfg.name or f"{task_of_env_id(env_id).name}-{cfg.scenario}-{cfg.algo}-s{cfg.seed}"
-
+__all__ = ["train"]
 
 def _rms_json(venv: Any) -> dict[str, Any] | None:
     from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize
@@ -122,18 +68,6 @@ def _rms_json(venv: Any) -> dict[str, Any] | None:
         return {"mean": rms.mean.tolist(), "var": rms.var.tolist(), "clip": venv.clip_obs,
                 "epsilon": venv.epsilon}
     return None
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, float | int | str | bool) or value is None:
-        return value
-    if isinstance(value, type):
-        return f"{value.__module__}.{value.__qualname__}"
-    return repr(value)
 
 
 def _make_env(env_id: str, cfg: TrainConfig, n_envs: int, residual: dict[str, Any] | None,
@@ -211,18 +145,6 @@ def _bound(agent: AgentPolicy, env_id: str, scenario: str) -> AgentPolicy:
     return agent.bind(gym.make(env_id, scenario=scenario))
 
 
-def hyperparams_of(cfg: TrainConfig, env_id: str) -> tuple[dict[str, Any], TrainConfig]:
-    """The run's hyperparameters (the algorithm's file, then ``cfg.overrides``) without the file's
-    ``env_kwargs``, and ``cfg`` with those under its own ``env_kwargs`` (RL Zoo's rule: they shape
-    the training environments only; the caller's win a clash)."""
-    hp = load_hyperparams(cfg.algo, env_id, cfg.hyperparams)
-    hp.update(cfg.overrides)
-    file_env_kwargs = hp.pop("env_kwargs", None) or {}
-    if not isinstance(file_env_kwargs, dict):
-        raise ValueError(f"the hyperparameter file's env_kwargs must be a mapping, got {file_env_kwargs!r}")
-    return hp, replace(cfg, env_kwargs={**file_env_kwargs, **cfg.env_kwargs})
-
-
 def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = None,
           on_validation: Callable[[dict[str, float]], None] | None = None, **kwargs: Any) -> dict[str, Any]:
     """Train one agent (see the module docstring) and return its sidecar.
@@ -246,7 +168,7 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
         raise ValueError(f"threads must be a positive integer, got {cfg.threads!r}")
     env_id = resolve_env_id(cfg.env)
     if cfg.backend == "jax":
-        # Imported here: the compiled trainer needs neither torch nor SB3, and this module's helpers.
+        # Imported here: the compiled trainer (and optax) load only for a run that uses it.
         from vnhc_gym.training.run_jax import train_seeds
 
         return train_seeds(cfg, [cfg.seed], log=log, on_validation=on_validation)[0]
@@ -278,7 +200,7 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
     gamma = float(hp.get("gamma", 0.99))
     out_dir = Path(cfg.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    stem = _stem(cfg, env_id)
+    stem = run_stem(cfg, env_id)
     venv = _make_env(env_id, cfg, n_envs, residual, normalize, gamma)
     if frame_stack > 1:  # the history variant: the last frame_stack observations (RL Zoo's key)
         from stable_baselines3.common.vec_env import VecFrameStack
@@ -293,8 +215,8 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
     meta: dict[str, Any] = {
         "format": SIDECAR_FORMAT, "name": stem, "algo": cfg.algo, "env_id": env_id, "scenario": cfg.scenario,
         "seed": cfg.seed, "n_envs": n_envs, "n_timesteps": n_timesteps, "config": asdict(cfg),
-        "hyperparams": _jsonable(hp), "policy": policy, "normalize": _jsonable(normalize),
-        "callbacks": _jsonable(callback_items),
+        "hyperparams": jsonable(hp), "policy": policy, "normalize": jsonable(normalize),
+        "callbacks": jsonable(callback_items),
         "residual": residual if residual is None else {**residual, "gain": residual.get("gain", 5.0)},
         "version": vnhc_gym.__version__, "code": code_fingerprint(), "obs_rms": None, "frame_stack": frame_stack,
     }
@@ -366,6 +288,6 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
         venv.close()
     meta.update({"curve": curve, "train_wall": train_wall, "eval_wall": t_eval,
                  "steps_per_second": model.num_timesteps / max(train_wall, 1e-9), "test": test})
-    (out_dir / f"{stem}.json").write_text(json.dumps(_jsonable(meta), indent=1))
+    (out_dir / f"{stem}.json").write_text(json.dumps(jsonable(meta), indent=1))
     return meta
 

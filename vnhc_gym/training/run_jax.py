@@ -41,7 +41,16 @@ import vnhc_gym
 from vnhc_gym.envs.functional import make_jax
 from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate
 from vnhc_gym.training import ppo_jax as P
-from vnhc_gym.training.run import SIDECAR_FORMAT, _jsonable, _stem, code_fingerprint, hyperparams_of, resolve_env_id
+from vnhc_gym.training.config import (
+    JAX_ALGOS,
+    SIDECAR_FORMAT,
+    TrainConfig,
+    code_fingerprint,
+    hyperparams_of,
+    jsonable,
+    resolve_env_id,
+    run_stem,
+)
 
 __all__ = ["JaxActor", "train_seeds"]
 
@@ -94,23 +103,29 @@ def _save(path: Path, arrays: dict[str, np.ndarray]) -> None:
     os.replace(tmp, path)
 
 
-def train_seeds(cfg: Any, seeds: Sequence[int], log: Callable[[str], None] | None = None,
-                on_validation: Callable[[dict[str, float]], None] | None = None) -> list[dict[str, Any]]:
-    """Train ``cfg`` (a `TrainConfig` with ``algo="ppo"``) once per seed, all seeds in one compiled
+def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], None] | None = None,
+                on_validation: Callable[[dict[str, float]], None] | None = None,
+                names: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    """Train ``cfg`` (with ``algo="ppo"``) once per seed, all seeds in one compiled
     program, and return the sidecars in the order of ``seeds``.
 
     ``on_validation`` gets each validation point of the first seed (as `train`'s).  Seed ``s``
     draws its networks and episodes from ``jax.random.key(s)``, so a seed gives the same run alone
-    or beside others.
+    or beside others.  ``names``: each seed's file stem (default: ``cfg.name`` for one seed, else
+    ``<task>-<scenario>-ppo-s<seed>``).
     """
     # One XLA thread, as one torch thread for SB3 (effective if JAX has not run anything yet): the
     # update is compute-bound and a second thread did not speed one run up (experiments/bench_train.py).
     os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
-    if cfg.algo != "ppo":
-        raise ValueError(f"backend 'jax' trains algo 'ppo' only, got {cfg.algo!r} (use backend 'sb3')")
+    if cfg.algo not in JAX_ALGOS:
+        raise ValueError(f"backend 'jax' trains {list(JAX_ALGOS)} only, got {cfg.algo!r} (use backend 'sb3')")
     seeds = [int(s) for s in seeds]
     if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
         raise ValueError(f"seeds must be distinct non-negative integers, got {seeds}")
+    if names is not None and (len(names) != len(seeds) or len(set(names)) != len(names)):
+        raise ValueError(f"names must give each of the {len(seeds)} seeds its own stem, got {list(names)}")
+    if names is None and cfg.name is not None and len(seeds) > 1:
+        raise ValueError(f"name {cfg.name!r} is one file stem for {len(seeds)} seeds: pass names, one per seed")
     env_id = resolve_env_id(cfg.env)
     hp, cfg = hyperparams_of(cfg, env_id)
     if cfg.n_timesteps is not None:
@@ -128,11 +143,11 @@ def train_seeds(cfg: Any, seeds: Sequence[int], log: Callable[[str], None] | Non
     run_chunk = jax.jit(jax.vmap(lambda ts: P.iterations(env, env_params, settings, ts, chunk)))
     validate = jax.jit(jax.vmap(lambda p: P.validation_scores(val_env, val_params, p, val_keys, settings.activation,
                                                               horizon)))
-    stems = [_stem(replace(cfg, seed=s), env_id) for s in seeds]
+    stems = list(names) if names is not None else [run_stem(replace(cfg, seed=s), env_id) for s in seeds]
     metas = [{"format": SIDECAR_FORMAT, "backend": "jax", "name": stem, "algo": cfg.algo, "env_id": env_id,
               "scenario": cfg.scenario, "seed": s, "n_envs": settings.n_envs, "n_timesteps": settings.n_timesteps,
-              "config": {**asdict(cfg), "seed": s}, "hyperparams": _jsonable(hp), "policy": "MlpPolicy",
-              "activation": settings.activation, "normalize": _jsonable(hp.get("normalize", False)),
+              "config": {**asdict(cfg), "seed": s}, "hyperparams": jsonable(hp), "policy": "MlpPolicy",
+              "activation": settings.activation, "normalize": jsonable(hp.get("normalize", False)),
               "residual": None, "version": vnhc_gym.__version__, "code": code_fingerprint(), "obs_rms": None,
               "frame_stack": 1, "checkpoint_format": "npz: pi.<i>.w/b, pi_out.w/b, log_std, vf.<i>.w/b, vf_out.w/b"}
              for s, stem in zip(seeds, stems, strict=True)]
@@ -187,5 +202,5 @@ def train_seeds(cfg: Any, seeds: Sequence[int], log: Callable[[str], None] | Non
                      "seeds_in_program": len(seeds), "steps_per_second": len(seeds) * steps / max(train_wall, 1e-9),
                      "steps_per_second_compiled": len(seeds) * steps / max(train_wall - compile_wall, 1e-9),
                      "test": test})
-        (out_dir / f"{meta['name']}.json").write_text(json.dumps(_jsonable(meta), indent=1))
+        (out_dir / f"{meta['name']}.json").write_text(json.dumps(jsonable(meta), indent=1))
     return metas

@@ -1,13 +1,14 @@
 """``vnhc-gym tune``: hyperparameter search with Optuna, for learners and classical baselines alike,
 on validation episodes only.
 
-One study searches one algorithm in one cell (task, scenario).  A trial of a learner trains it with
-sampled hyperparameters (`SPACES`) for ``n_timesteps`` env steps, ``repeats`` times with training
-seeds 0, 1, ..., validating ``eval_points`` times along each run on the validation episodes (seeds
-from 5 000); its value is the mean over the repeats of the best validation ``score`` (the score of
-the checkpoint a run would keep).  A trial of a classical baseline evaluates its sampled gains on
-the same validation episodes with the same score.  The test episodes (seeds from 10 000) are
-never run: every learner trains with ``test_episodes=0``.
+One study searches one algorithm in one cell (task, scenario). A trial of a learner trains it with
+sampled hyperparameters (`SPACES`) for ``n_timesteps`` env steps (on Stable-Baselines3, or with
+``backend="jax"`` a PPO compiled with its environment), ``repeats`` times with training seeds 0, 1,
+..., validating ``eval_points`` times along each run on the validation episodes (seeds from 5 000);
+its value is the mean over the repeats of the best validation ``score`` (the score of the checkpoint
+a run would keep). A trial of a classical baseline evaluates its sampled gains on the same
+validation episodes with the same score. The test episodes (seeds from 10 000) are never run: every
+learner trains with ``test_episodes=0``.
 
 The sampler is Optuna's TPE (seeded), the pruner its median rule: a learner's trial stops when its
 validation score falls below the median of the earlier trials at the same point of training.  The
@@ -117,6 +118,8 @@ class TuneConfig:
     study: str | None = None  #: the study's name (default ``<task>-<scenario>-<algo>``)
     out: str = "tuned"
     threads: int = 1  #: torch threads per training run
+    #: a learner's training backend: ``"sb3"`` or ``"jax"`` (PPO compiled with its environment)
+    backend: str = "sb3"
     env_kwargs: dict[str, Any] = field(default_factory=dict)  #: the training environments' arguments only
 
 
@@ -127,6 +130,12 @@ def _check(cfg: TuneConfig) -> None:
         value = getattr(cfg, name)
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    from vnhc_gym.training.config import BACKENDS, JAX_ALGOS
+
+    if cfg.backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {list(BACKENDS)}, got {cfg.backend!r}")
+    if cfg.backend == "jax" and cfg.algo not in JAX_ALGOS:
+        raise ValueError(f"the jax backend trains {list(JAX_ALGOS)}; {cfg.algo!r} trains with backend 'sb3'")
 
 
 def _merge(base: dict[str, Any], sampled: dict[str, Any]) -> dict[str, Any]:
@@ -143,7 +152,8 @@ def _merge(base: dict[str, Any], sampled: dict[str, Any]) -> dict[str, Any]:
 def _learner_objective(cfg: TuneConfig, base: dict[str, Any], work: Path) -> Callable[[Any], float]:
     import optuna
 
-    from vnhc_gym.training.run import TrainConfig, train
+    from vnhc_gym.training.config import TrainConfig
+    from vnhc_gym.training.run import train
 
     def objective(trial: Any) -> float:
         hp = _merge(base, SPACES[cfg.algo](trial))
@@ -163,7 +173,8 @@ def _learner_objective(cfg: TuneConfig, base: dict[str, Any], work: Path) -> Cal
             run = TrainConfig(algo=cfg.algo, env=cfg.env, scenario=cfg.scenario, seed=rep, n_timesteps=cfg.n_timesteps,
                               out=str(work), eval_points=cfg.eval_points, eval_episodes=cfg.eval_episodes,
                               test_episodes=0, threads=cfg.threads, overrides=overrides,
-                              env_kwargs=dict(cfg.env_kwargs), name=f"trial{trial.number}-s{rep}")
+                              env_kwargs=dict(cfg.env_kwargs), name=f"trial{trial.number}-s{rep}",
+                              backend=cfg.backend)
             meta = train(run, on_validation=report)
             best.append(max(p["score"] for p in meta["curve"]))
         return float(sum(best) / len(best))
@@ -192,8 +203,8 @@ def tune(cfg: TuneConfig | None = None, log: Callable[[str], None] | None = prin
     import yaml
 
     from vnhc_gym.tasks import task_of_env_id
+    from vnhc_gym.training.config import resolve_env_id
     from vnhc_gym.training.hyperparams import dump_hyperparams, load_hyperparams
-    from vnhc_gym.training.run import resolve_env_id
 
     cfg = cfg or TuneConfig(**kwargs)
     _check(cfg)
@@ -290,6 +301,9 @@ def add_arguments(parser: Any) -> None:
     parser.add_argument("--study", default=None, help="the study's name (default <task>-<scenario>-<algo>)")
     parser.add_argument("--out", default=d.out, help=f"output folder (default {d.out})")
     parser.add_argument("--threads", type=int, default=d.threads, help="torch threads per training run")
+    parser.add_argument("--backend", default=d.backend, choices=["sb3", "jax"],
+                        help="a learner's training backend: sb3, or jax for PPO compiled with its environment "
+                             f"(default {d.backend})")
     parser.add_argument("--env-kwargs", nargs="*", default=[], metavar="KEY:VALUE",
                         help="arguments of the training environments only (e.g. reward:reciprocal); validation "
                              "uses the environment's defaults")

@@ -1,0 +1,202 @@
+"""The written verdicts of a sweep's report: `verdict` (a cell's winner, from the best learned agent's
+probability of improvement), the reasons behind it, ``headline.md`` and ``verdicts.json`` (a line a
+cell), and the tables ``comparison.csv`` and ``comparison.md`` (a row per cell and algorithm)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from vnhc_gym.sweep.specs import RESIDUAL_ALGOS
+
+
+def _fmt(x: float | None) -> str:
+    return "n/a" if x is None else f"{x:.3g}"
+
+
+def _score(r: dict[str, Any]) -> str:
+    return f"{r['score']:.4f} [{r['low']:.4f}, {r['high']:.4f}]"
+
+
+def _basis(r: dict[str, Any]) -> str:
+    """The data a row rests on, e.g. ``"5 runs x 20 episodes"``."""
+    n = int(r["runs"])
+    return f"{n} run{'' if n == 1 else 's'} x {int(r['episodes_per_run'])} episodes"
+
+
+def _p(v: float) -> str:
+    """A probability to two decimals, or three where two would round an end onto 0.5 (where the verdict
+    turns): 0.499 and 0.501 must not both read 0.50."""
+    return f"{v:.3f}" if v != 0.5 and f"{v:.2f}" == "0.50" else f"{v:.2f}"
+
+
+def _poi(r: dict[str, Any]) -> str:
+    return f"{_p(r['poi'])} [{_p(r['poi_low'])}, {_p(r['poi_high'])}]"
+
+
+def _parity_text(r: dict[str, Any]) -> tuple[str, str]:
+    if "parity_runs" not in r:
+        return "", ""
+    if r["parity_steps"] is None:
+        return f"not reached ({r['parity_runs']})", "not reached"
+    return f"{r['parity_steps']:.3g} ({r['parity_runs']})", f"{r['parity_seconds']:.0f}"
+
+
+def _write_tables(rows: list[dict[str, Any]], dest: Path) -> None:
+    import csv
+
+    keys = ["env", "scenario", "algo", "kind", "runs", "episodes_per_run", "episodes", "score", "low", "high",
+            "success", "iqm_abs_phi_sf", "horizon_abs_phi_sf", "best_classical", "poi", "poi_low", "poi_high",
+            "parity_steps", "parity_seconds", "parity_runs", "solve_ms_per_step"]
+    with open(dest / "comparison.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+    lines = []
+    for env in sorted({r["env"] for r in rows}):
+        lines += [f"### {env}", "",
+                  "| scenario | algo | runs x episodes | score [95% CI] | success | IQM mean abs phi~ "
+                  "| P(beats best classical) | steps to parity | s to parity |",
+                  "|---|---|---:|---|---:|---:|---|---:|---:|"]
+        for r in (r for r in rows if r["env"] == env):
+            best = " (best)" if r["algo"] == r["best_classical"] else ""
+            if "solve_ms_per_step" in r:
+                best += f" ({r['solve_ms_per_step']:.0f} ms/step)"
+            steps, secs = _parity_text(r)
+            lines.append(f"| {r['scenario']} | {r['algo']}{best} | {r['runs']} x {r['episodes_per_run']} | {_score(r)} "
+                         f"| {r['success']:.2f} | "
+                         f"{_fmt(r['iqm_abs_phi_sf'])} | {_poi(r) if 'poi' in r else ''} | {steps} | {secs} |")
+        lines.append("")
+    (dest / "comparison.md").write_text("\n".join(lines))
+
+
+def verdict(best_learned: dict[str, Any] | None, best: dict[str, Any] | None) -> tuple[str, str]:
+    """The verdict of a cell, ``(winner, words)``, from the best learned agent's probability of
+    improvement over the best classical baseline: its interval above 0.5 (``"learned"``), below 0.5
+    (``"classical"``), across it (``"none"``), or no learned agent yet (``"incomplete"``).  The
+    words name the runs x episodes of both sides, the data the verdict rests on."""
+    if best_learned is None or best is None or "poi" not in best_learned:
+        return "incomplete", "incomplete"
+    learned, classical = best_learned["algo"], best["algo"]
+    if best_learned["poi_low"] > 0.5:
+        return "learned", f"{learned} beats {classical} ({_basis(best_learned)} vs {_basis(best)})"
+    if best_learned["poi_high"] < 0.5:
+        return "classical", (f"{classical} beats every learned agent ({learned}, {_basis(best_learned)}, "
+                             f"vs {_basis(best)})")
+    return "none", f"no clear winner ({learned}, {_basis(best_learned)}, vs {classical}, {_basis(best)})"
+
+
+def _cell_rows(rows: list[dict[str, Any]]) -> list[tuple[str, str, dict[str, dict[str, Any]]]]:
+    cells = sorted({(r["env"], r["scenario"]) for r in rows})
+    return [(e, s, {r["algo"]: r for r in rows if r["env"] == e and r["scenario"] == s}) for e, s in cells]
+
+
+def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, Any]]:
+    """``headline.md``: a line a cell: the oracle, the best classical baseline, the best learned agent
+    (the highest mean validation score over its runs), each with the score's interval and success
+    rate, the probability of improvement, steps and seconds to parity, and the verdict with the runs
+    x episodes it rests on."""
+    lines = ["Mean score over held-out test episodes (the return over the fixed horizon per step, in [0, 1]; "
+             "a failed episode's remaining steps count 0), its 95 % bootstrap interval and the success rate "
+             "(episodes that reached the time limit). P: the probability that an episode of the best learned agent "
+             "scores above one of the best classical baseline's, with its 95 % interval (**bold**: above 0.5). "
+             "A learned agent's intervals redraw its training runs, then the test episodes within each run; a "
+             "classical baseline is one run. Each verdict names the runs x episodes it rests on.", "",
+             "| env | scenario | oracle | best classical | best learned | P | steps / s to parity | verdict |",
+             "|---|---|---|---|---|---|---|---|"]
+    verdicts = []
+    for env, scenario, cell in _cell_rows(rows):
+        oracle = cell.get("oracle")
+        best = next((r for r in cell.values() if r["algo"] == r["best_classical"]), None)
+        learned = [r for r in cell.values() if r["kind"] == "learned"]
+        # Chosen on validation episodes, like the best classical baseline: picking the agent with the
+        # best test score would bias its probability of improvement upwards.
+        top = max(learned, key=lambda r: r["validation_score"]) if learned else None
+        winner, words = verdict(top, best)
+        why = _why(winner, oracle, best, top, learned)
+        verdicts.append({"env": env, "scenario": scenario, "verdict": words, "winner": winner, "why": why,
+                         "best_classical": best["algo"] if best else None, "best_learned": top["algo"] if top else None,
+                         "poi_low": top.get("poi_low") if top else None,
+                         "learned_runs_x_episodes": [top["runs"], top["episodes_per_run"]] if top else None,
+                         "classical_runs_x_episodes": [best["runs"], best["episodes_per_run"]] if best else None})
+
+        def entry(r: dict[str, Any] | None, name: bool = True) -> str:
+            if r is None:
+                return ""
+            return (f"{r['algo']} " if name else "") + f"{_score(r)}, {r['success']:.0%}"
+
+        poi = ""
+        if top is not None and "poi" in top:
+            poi = f"**{_poi(top)}**" if top["poi_low"] > 0.5 else _poi(top)
+        steps, secs = _parity_text(top) if top is not None else ("", "")
+        lines.append(f"| {env} | {scenario} | {entry(oracle, name=False)} | {entry(best)} | {entry(top)} | {poi} | "
+                     f"{steps} / {secs} | {words}{': ' + why if why else ''} |")
+    lines += ["", *_verdict_summary(verdicts)]
+    (dest / "headline.md").write_text("\n".join(lines) + "\n")
+    (dest / "verdicts.json").write_text(json.dumps(verdicts, indent=1))
+    return verdicts
+
+
+#: A best classical baseline this close to the oracle (in score) leaves nothing measurable to win.
+NO_HEADROOM = 0.005
+
+
+def _why(winner: str, oracle: dict[str, Any] | None, best: dict[str, Any] | None, top: dict[str, Any] | None,
+         learned: list[dict[str, Any]]) -> str:
+    """The reason behind a cell's verdict, in words, from its numbers: how much the best learned agent
+    gains or loses, which one finishes more episodes, how much the oracle leaves to win, and whether
+    residual agents ever left their base."""
+    if winner == "incomplete" or best is None or top is None:
+        return ""
+    parts = []
+    gap = top["score"] - best["score"]
+    finishes = (f"{top['algo']} finishes {top['success']:.0%} of the episodes, {best['algo']} {best['success']:.0%}"
+                if top["success"] != best["success"] else "")
+    if winner == "learned":
+        return "; ".join(p for p in (f"{gap:+.4f} in score", finishes) if p)
+    if gap >= 5e-5:  # a gap that shows at the printed precision
+        if top["poi"] > 0.5:
+            # The pairwise majority too, but an end of the interval on the other side of 0.5: the
+            # spread between its training runs and episodes leaves no difference possible.
+            parts.append(f"{top['algo']} has the higher mean ({gap:+.4f}) and wins {_p(top['poi'])} of the pairwise "
+                         f"comparisons, but the interval reaches {_p(top['poi_low'])}")
+        else:
+            # A higher mean without the pairwise majority: the classical baseline's episodes mostly score
+            # higher, and a few of them (typically failures) pull its mean down.
+            parts.append(f"{top['algo']} has the higher mean ({gap:+.4f}) but not most pairwise comparisons")
+        if finishes:
+            parts.append(finishes)
+    if oracle is not None:
+        headroom = oracle["score"] - best["score"]
+        if headroom < -NO_HEADROOM:
+            fails = f": it fails {1 - oracle['success']:.0%} of the episodes" if oracle["success"] < 1 else ""
+            parts.append(f"the oracle scores below the best classical ({headroom:+.4f}{fails})")
+        elif headroom >= 0 and headroom <= NO_HEADROOM:
+            parts.append(f"no headroom (the oracle is {headroom:+.4f} above the best classical)")
+        elif headroom < 0:
+            parts.append(f"no headroom (the oracle is {-headroom:.4f} below the best classical)")
+    residual = [r for r in learned if r["algo"] in RESIDUAL_ALGOS]
+    if residual and all(r.get("parity_steps") is None for r in residual):
+        parts.append("no residual run beat its base on validation")
+    scratch = [r for r in learned if r["algo"] not in RESIDUAL_ALGOS]
+    if scratch:
+        behind = best["score"] - max(r["score"] for r in scratch)
+        if behind > 0:
+            parts.append(f"from scratch {behind:.4f} behind")
+    return "; ".join(parts)
+
+
+def _verdict_summary(verdicts: list[dict[str, Any]]) -> list[str]:
+    """The verdicts grouped in words: where learning wins, where it loses, where neither is shown."""
+    def cells(pred: Callable[[dict[str, Any]], bool]) -> str:
+        hit = [f"{v['env']}/{v['scenario']}" for v in verdicts if pred(v)]
+        return ", ".join(hit) if hit else "none"
+
+    return [f"- **A learned agent beats the best classical baseline** (interval above 0.5): "
+            f"{cells(lambda v: v['winner'] == 'learned')}.",
+            f"- **The best classical baseline beats every learned agent** (interval below 0.5): "
+            f"{cells(lambda v: v['winner'] == 'classical')}.",
+            f"- **No clear winner** (interval across 0.5): {cells(lambda v: v['winner'] == 'none')}.",
+            f"- Cells without a finished learned run: {cells(lambda v: v['winner'] == 'incomplete')}."]
