@@ -118,6 +118,9 @@ def test_a_compiled_run_is_its_own_entry_and_its_cells_seeds_one_unit() -> None:
     assert [[s.stem for s in u] for u in groups if len(u) > 1] == [
         [s.stem for s in specs if s.env == env and s.algo == "ppo"] for env in ("usv", "sled")]
     assert sum(map(len, groups)) == len(specs) and len(groups) == 4
+    nested = grid(["usv"], ["nominal"], ["ppo"], [0, 1], 10, overrides={"policy_kwargs": {"net_arch": [32, 32]}},
+                  backend="jax")
+    assert [[s.seed for s in u] for u in units(nested)] == [[0, 1]]
     assert gpus_of(jx, True) == 1 and gpus_of(sb3, True) == 0 and gpus_of(jx, False) == 0
 
 

@@ -122,12 +122,12 @@ def units(specs: Sequence[RunSpec]) -> list[list[RunSpec]]:
     """The sweep's units of work, in the order of ``specs``: the compiled backend's runs of one
     cell and configuration together (their seeds train in one program), every other run alone."""
     out: list[list[RunSpec]] = []
-    together: dict[RunSpec, list[RunSpec]] = {}
+    together: dict[str, list[RunSpec]] = {}
     for s in specs:
         if s.backend == "sb3":
             out.append([s])
             continue
-        key = replace(s, seed=0)
+        key = replace(s, seed=0).key()  # (a spec's overrides may hold dicts: the spec itself is not hashable)
         if key not in together:
             together[key] = []
             out.append(together[key])
