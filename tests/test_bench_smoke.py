@@ -26,14 +26,12 @@ def _run(script: str, out: Path, timeout: int = 900) -> subprocess.CompletedProc
 
 @pytest.mark.slow
 def test_train_compare_quick_writes_every_table_and_figure(tmp_path: Path) -> None:
-    """The quick grid covers every registered task, and writes every table and figure of the report."""
+    """The quick grid (two tasks) writes every table and figure of the report."""
     pytest.importorskip("stable_baselines3")
-    from vnhc_gym.tasks import shipped_tasks
-
     out = tmp_path / "compare"
     proc = _run("train_compare.py", out)
     report = out / "report"
-    envs = tuple(shipped_tasks())
+    envs = ("sled", "cartpole")
     for name in ("comparison.md", "comparison.csv", "comparison.json", "headline.md", "verdicts.json", "verdict.png",
                  "performance_profile.png", *(f"learning_curves_{env}.png" for env in envs)):
         assert (report / name).is_file() and (report / name).stat().st_size > 0, name

@@ -21,6 +21,8 @@ from vnhc_gym.baselines import GeometricController
 from vnhc_gym.evaluation import TEST_SEED, evaluate
 from vnhc_gym.tasks import env_id, env_ids, shipped_tasks
 
+# One xdist worker runs this module, so that its module-scoped fixture (the quick benchmark's run) is built once.
+pytestmark = pytest.mark.xdist_group("test_benchmark")
 TASKS = shipped_tasks()  # the package's own tasks (the tutorial's is registered by conftest)
 
 QUICK_POLICIES = ["zero", "random", "law", "inloop"]

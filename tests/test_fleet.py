@@ -59,7 +59,7 @@ def assert_same(a: tuple | np.ndarray, b: tuple | np.ndarray) -> None:
 # --------------------------------------------------------------------------- the fleet is the written-out system
 
 
-@pytest.mark.parametrize("n", [2, 3, 4, 6])
+@pytest.mark.parametrize("n", [2, 6])  # one unit, and several (the code is the same for any n)
 def test_fleet_metadata_equals_written_out_system(n: int) -> None:
     fleet, full = make_flocking(n), written_out(n)
     assert fleet.compiled is not full.compiled
@@ -70,7 +70,7 @@ def test_fleet_metadata_equals_written_out_system(n: int) -> None:
     assert fleet.compiled.R == n - 1  # n - 1 copies of the two-particle unit
 
 
-@pytest.mark.parametrize("n", [2, 3, 4, 6])
+@pytest.mark.parametrize("n", [2, 6])  # one unit, and several (the code is the same for any n)
 @pytest.mark.parametrize("feedback", ["open", "continuous", "sampled"])
 def test_fleet_step_equals_written_out_system_to_the_bit(n: int, feedback: str) -> None:
     fleet, full = make_flocking(n), written_out(n)
@@ -99,7 +99,7 @@ def test_fleet_step_equals_written_out_system_to_the_bit(n: int, feedback: str) 
     assert bool(flags[3] & FLAG_SINGULAR) == (feedback != "open")  # only the law meets C
 
 
-@pytest.mark.parametrize("n", [2, 3, 4, 6])
+@pytest.mark.parametrize("n", [2, 6])  # one unit, and several (the code is the same for any n)
 def test_fleet_law_and_pieces_equal_written_out_system_to_the_bit(n: int) -> None:
     fleet, full = make_flocking(n), written_out(n)
     rng = np.random.default_rng(500 + n)

@@ -56,6 +56,32 @@ def test_a_batch_is_its_episodes_one_by_one(env_id: str) -> None:
             np.testing.assert_allclose(one[2], batch[2][i], rtol=0, atol=1e-12)
 
 
+def test_a_batch_through_resets_is_its_episodes_one_by_one() -> None:
+    """Under ``jax.vmap`` the automatic reset draws new episodes only for the rows that ended; every
+    row must still be what one episode stepped alone gives, through several resets, whether the
+    batch is flat or nested (seeds x episodes)."""
+    with jax.enable_x64(True):
+        env, params = make_jax("vnhc_gym/SledCruise-v1", max_steps=7)
+        n, steps, m = 16, 20, env.num_actions
+        _, start = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(jax.random.key(0), n), params)
+        actions = jax.random.uniform(jax.random.key(1), (steps, n, m), minval=-1.0, maxval=1.0)
+        keys = jax.random.split(jax.random.key(2), (steps, n))
+        flat = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
+        nested = jax.jit(jax.vmap(jax.vmap(env.step, in_axes=(0, 0, 0, None)), in_axes=(0, 0, 0, None)))
+        one = jax.tree.map(lambda x: x[3], start)
+        s_flat = start
+        s_nested = jax.tree.map(lambda x: x.reshape(2, 8, *x.shape[1:]), start)
+        ended = 0
+        for t in range(steps):
+            o_flat, s_flat, _, term, trunc, _ = flat(keys[t], s_flat, actions[t], params)
+            o_nested, s_nested, *_ = nested(keys[t].reshape(2, 8), s_nested, actions[t].reshape(2, 8, m), params)
+            o_one, one, *_ = env.step(keys[t, 3], one, actions[t, 3], params)
+            ended += int(jnp.sum(term | trunc))
+            np.testing.assert_allclose(o_one, o_flat[3], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(o_nested.reshape(n, -1), o_flat, rtol=0, atol=1e-12)
+        assert ended >= n  # every row went through at least one reset (the time limit is 7 steps)
+
+
 def test_the_law_in_the_loop_makes_phi_decay_like_exp_minus_k_t(env_id: str) -> None:
     """With the law at every RK4 stage (gain k) and no action, ``phi(t) = exp(-k t) phi(0)`` while
     the force bound does not bind (a large bound here)."""

@@ -32,6 +32,8 @@ from vnhc_gym.training.hyperparams import (
     parse_literal,
 )
 
+# One xdist worker runs this module, so that its module-scoped fixture (RL Zoo's models) is built once.
+pytestmark = pytest.mark.xdist_group("test_hyperparams")
 REPO = Path(__file__).resolve().parents[1]
 V1_IDS = ("vnhc_gym/USVStream-v1", "vnhc_gym/FlockingAlign-v1")
 FILES = [algo for algo in sorted(RL_ZOO_ALGO) if (hyperparams_dir() / f"{algo}.yml").is_file()]

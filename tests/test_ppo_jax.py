@@ -15,6 +15,8 @@ from scipy import stats
 from vnhc_gym.training import ppo_jax as P
 from vnhc_gym.training.hyperparams import env_ids, load_hyperparams
 
+# One xdist worker runs this module, so that its module-scoped fixture (the compiled trainer's runs) is built once.
+pytestmark = pytest.mark.xdist_group("test_ppo_jax")
 PPO_FILE_IDS = env_ids("ppo")
 
 

@@ -39,6 +39,8 @@ from vnhc_gym.training import (  # noqa: E402
 )
 from vnhc_gym.training.agents import ZOO_DIR, UntrustedFileWarning  # noqa: E402
 
+# One xdist worker runs this module, so that its module-scoped fixture (the tiny training runs) is built once.
+pytestmark = pytest.mark.xdist_group("test_training")
 ENVS = env_ids("v1", shipped_only=True)
 TINY = {"n_envs": 8, "n_steps": 64, "batch_size": 128}
 TINY_SAC = {"n_envs": 8, "learning_starts": 500, "batch_size": 64, "gradient_steps": 2, "buffer_size": 10_000}

@@ -206,9 +206,7 @@ class FunctionalEnv:
         new, out = self.transition(key_step, state, action, params)
         truncated = jnp.logical_and(~out.terminated, new.time >= params.max_steps_in_episode)
         done = jnp.logical_or(out.terminated, truncated)
-        obs_reset, state_reset = self.initial(key_reset, params)
-        state = jax.tree.map(lambda a, b: jnp.where(done, a, b), state_reset, new)
-        obs = jnp.where(done, obs_reset, out.obs)
+        obs, state = self._autoreset(done, key_reset, out.obs, new, params)
         info = {"phi": out.phi, "abs_phi": out.abs_phi, "abs_phi_sf": out.abs_phi_sf, "status": out.status,
                 "force": out.force, "final_observation": out.obs, "terminated": out.terminated,
                 "truncated": truncated}
@@ -217,12 +215,10 @@ class FunctionalEnv:
     @partial(jax.jit, static_argnums=0)
     def step_batch(self, key: Array, state: EnvState, action: Array, params: EnvParams | None = None
                    ) -> tuple[Array, EnvState, Array, Array, Array, dict[str, Array]]:
-        """`step` for a batch of episodes (``state`` and ``action`` with a leading axis), the same
-        results, faster: the new episodes are drawn only on the steps where some episode ended.
-
-        Why: ``jax.vmap(step)`` draws a new episode for every row at every step and keeps it where
-        the row ended, since a batched branch runs both sides; drawing a start state costs more
-        than the step itself (3.3 times the boat's).  Here the branch is on the whole batch.
+        """`step` for a batch of episodes (``state`` and ``action`` with a leading axis): row ``i``
+        goes on with key ``split(key_step, n)[i]`` and, if it ended, starts the episode drawn with
+        ``split(key_reset, n)[i]`` (``key_step, key_reset = split(key)``).  New episodes are drawn
+        only for the rows that ended (`_reset_rows`), as ``jax.vmap(step)`` does.
         """
         params = self.default_params if params is None else params
         n = action.shape[0]
@@ -231,17 +227,75 @@ class FunctionalEnv:
                                                                      params)
         truncated = jnp.logical_and(~out.terminated, new.time >= params.max_steps_in_episode)
         done = jnp.logical_or(out.terminated, truncated)
-
-        def reset(_: None) -> tuple[Array, EnvState]:
-            obs_reset, state_reset = jax.vmap(self.initial, in_axes=(0, None))(jax.random.split(key_reset, n), params)
-            pick = partial(jax.vmap(jnp.where), done)
-            return pick(obs_reset, out.obs), jax.tree.map(pick, state_reset, new)
-
-        obs, state = jax.lax.cond(jnp.any(done), reset, lambda _: (out.obs, new), None)
+        obs, state = self._reset_rows(done, jax.random.split(key_reset, n), out.obs, new, params)
         info = {"phi": out.phi, "abs_phi": out.abs_phi, "abs_phi_sf": out.abs_phi_sf, "status": out.status,
                 "force": out.force, "final_observation": out.obs, "terminated": out.terminated,
                 "truncated": truncated}
         return obs, state, out.reward, out.terminated, truncated, info
+
+    # ------------------------------------------------------------------ the automatic reset
+    def _autoreset(self, done: Array, key: Array, obs: Array, new: EnvState, params: EnvParams
+                   ) -> tuple[Array, EnvState]:
+        """The episode drawn with ``key`` where ``done``, else ``(obs, new)``.
+
+        One episode draws its new start on every step and keeps it only where it ended.  Under
+        ``jax.vmap`` (the batching rule below), that would draw a start for every row on every
+        step, which costs as much as the step itself (threefry draws and the task's start state);
+        the rule draws starts only for the rows that ended (`_reset_rows`), with the same keys, so
+        every row gets the same numbers as one episode stepped alone.
+        """
+
+        @jax.custom_batching.custom_vmap
+        def select(done: Array, key: Array, obs: Array, new: EnvState, params: EnvParams) -> tuple[Array, EnvState]:
+            obs_reset, state_reset = self.initial(key, params)
+            return (jnp.where(done, obs_reset, obs),
+                    jax.tree.map(lambda a, b: jnp.where(done, a, b), state_reset, new))
+
+        @select.def_vmap
+        def select_rows(axis_size: int, in_batched: list[Any], done: Array, key: Array, obs: Array, new: EnvState,
+                        params: EnvParams) -> tuple[tuple[Array, EnvState], Any]:
+            if any(jax.tree.leaves(in_batched[4])):
+                # Parameters per row (a batch over scenarios): every row draws its own start.
+                axes = jax.tree.map(lambda b: 0 if b else None, tuple(in_batched))
+                out = jax.vmap(select.fun, in_axes=axes)(done, key, obs, new, params)
+            else:
+                def rows(x: Array, batched: bool) -> Array:
+                    return x if batched else jnp.broadcast_to(x, (axis_size, *x.shape))
+
+                done, key, obs, new = (jax.tree.map(rows, a, b) for a, b in zip((done, key, obs, new), in_batched[:4],
+                                                                                strict=True))
+                out = self._reset_rows(done, key, obs, new, params)
+            return out, jax.tree.map(lambda _: True, out)
+
+        return select(done, key, obs, new, params)
+
+    def _reset_rows(self, done: Array, keys: Array, obs: Array, new: EnvState, params: EnvParams
+                    ) -> tuple[Array, EnvState]:
+        """Row ``i`` of ``(obs, new)``, or the episode drawn with ``keys[i]`` where ``done[i]``.
+
+        The rows that ended are gathered in chunks of an eighth of the batch (a few percent of the
+        rows end on a step with random actions), and a chunk's starts are drawn and scattered back
+        while rows remain: one chunk on most steps instead of a start for every row.  A
+        ``while_loop``, not a ``cond`` between a few rows and all of them: under an outer
+        ``jax.vmap`` (seeds side by side) a ``cond`` would run both branches.
+        """
+        n = done.shape[0]
+        chunk = max(1, -(-n // 8))
+        chunks = -(-n // chunk)
+        # The rows that ended first, in order; the padding (index n) is out of bounds and dropped.
+        idx = jnp.nonzero(done, size=chunks * chunk, fill_value=n)[0]
+        count = jnp.sum(done, dtype=jnp.int32)
+
+        def draw(carry: tuple[Array, Array, EnvState]) -> tuple[Array, Array, EnvState]:
+            c, obs, state = carry
+            rows = jax.lax.dynamic_slice_in_dim(idx, c * chunk, chunk)
+            o, s = jax.vmap(self.initial, in_axes=(0, None))(keys[jnp.minimum(rows, n - 1)], params)
+            put = partial(_put_rows, rows)
+            return c + 1, put(obs, o), jax.tree.map(put, state, s)
+
+        _, obs, state = jax.lax.while_loop(lambda carry: carry[0] * chunk < count, draw,
+                                           (jnp.zeros((), jnp.int32), obs, new))
+        return obs, state
 
     # ------------------------------------------------------------------ the shared step
     def initial(self, key: Array, params: EnvParams) -> tuple[Array, EnvState]:
@@ -358,6 +412,11 @@ class FunctionalEnv:
         x = abs_phi_sf / params.reward_sigma
         r = (jnp.exp(-x) if self.reward == "bounded" else 1.0 / (1.0 + x)) - cost
         return jnp.clip(jnp.where(nonfinite | jnp.isnan(r), 0.0, r), 0.0, 1.0)
+
+
+def _put_rows(rows: Array, dest: Array, values: Array) -> Array:
+    """``dest`` with ``dest[rows[j]] = values[j]``; rows out of bounds are dropped."""
+    return dest.at[rows].set(values.astype(dest.dtype), mode="drop")
 
 
 def _when(pred: Array, draw: Callable[[Array], Array], otherwise: Callable[[Array], Array], key: Array) -> Array:
