@@ -107,6 +107,25 @@ def test_log_prob_is_the_diagonal_gaussian_density() -> None:
                                rtol=1e-5)
 
 
+@pytest.mark.parametrize("n", [1, 2, 5, 4096, 16384, 100_003])
+def test_shuffle_is_a_permutation(n: int) -> None:
+    order = np.asarray(P.shuffle(jax.random.key(n), n))
+    np.testing.assert_array_equal(np.sort(order), np.arange(n))
+
+
+def test_shuffle_puts_every_element_anywhere_with_equal_chance() -> None:
+    # 4000 shuffles of 5: each element's position is uniform (chi-square), and for a large rollout
+    # (two rounds of sorting) element 0 lands before element 1 half the time.
+    orders = np.asarray(jax.vmap(lambda k: P.shuffle(k, 5))(jax.random.split(jax.random.key(0), 4000)))
+    for element in range(5):
+        counts = np.bincount(np.argmax(orders == element, axis=1), minlength=5)
+        assert stats.chisquare(counts).pvalue > 1e-3, (element, counts)
+    big = jax.vmap(lambda k: P.shuffle(k, 16384))(jax.random.split(jax.random.key(1), 400))
+    first = np.asarray(jnp.argmax(big == 0, axis=1) < jnp.argmax(big == 1, axis=1))
+    assert stats.binomtest(int(first.sum()), first.size).pvalue > 1e-3
+    assert len({tuple(o[:8]) for o in np.asarray(big)}) == 400  # no two shuffles alike
+
+
 def test_initial_networks_are_sb3s_orthogonal_ones() -> None:
     s = P.PPOSettings(net_arch=(64, 64), log_std_init=-1.5)
     params = P.init_params(jax.random.key(0), s=s, obs_dim=64, act_dim=2)
@@ -154,7 +173,9 @@ def test_a_short_compiled_run_improves_the_validation_score(usv_runs: dict) -> N
     for meta in usv_runs["both"]:
         curve = meta["curve"]
         assert curve[0]["steps"] == 0 and curve[-1]["steps"] == 5 * 16384
-        assert curve[-1]["score"] > curve[0]["score"] + 0.1, curve  # 0.06 -> 0.19 measured
+        # Gains after 5 iterations, 8 seeds, 10 episodes: 0.05 to 0.15 (0.04 to 0.23 with
+        # jax.random.permutation's minibatches): a seed that does not learn stays within 0.01.
+        assert curve[-1]["score"] > curve[0]["score"] + 0.03, curve
 
 
 @pytest.mark.slow

@@ -140,7 +140,8 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
     out_dir = Path(cfg.out)
     out_dir.mkdir(parents=True, exist_ok=True)
 
-    run_chunk = jax.jit(jax.vmap(lambda ts: P.iterations(env, env_params, settings, ts, chunk)))
+    run_chunk = jax.jit(jax.vmap(lambda ts, start: P.iterations(env, env_params, settings, ts, chunk, start),
+                                 in_axes=(0, None)))
     validate = jax.jit(jax.vmap(lambda p: P.validation_scores(val_env, val_params, p, val_keys, settings.activation,
                                                               horizon)))
     stems = list(names) if names is not None else [run_stem(replace(cfg, seed=s), env_id) for s in seeds]
@@ -180,10 +181,10 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
     ts = P.init(jnp.stack([jax.random.key(s) for s in seeds]), env, env_params, settings)
     check(ts)
     t0 = time.perf_counter()
-    step_chunk = run_chunk.lower(ts).compile()
+    step_chunk = run_chunk.lower(ts, jnp.int32(0)).compile()
     compile_wall = time.perf_counter() - t0
-    while int(np.asarray(ts.iteration)[0]) < n_iter:
-        ts, _ = step_chunk(ts)
+    while (done := int(np.asarray(ts.iteration)[0])) < n_iter:
+        ts, _ = step_chunk(ts, jnp.int32(done))
         jax.block_until_ready(ts)  # else the chunk's time would be counted in the validation's
         check(ts)
     train_wall = time.perf_counter() - t_start - t_eval
