@@ -213,8 +213,8 @@ def test_the_jax_backend_refuses_what_it_does_not_train() -> None:
 
     with pytest.raises(ValueError, match="backend must be one of"):
         train(TrainConfig(backend="tf"))
-    with pytest.raises(ValueError, match=r"trains \['ppo'\] only"):
-        train(TrainConfig(algo="sac", backend="jax"))
+    with pytest.raises(ValueError, match=r"trains \['ppo', 'sac'\] only"):
+        train(TrainConfig(algo="residual_ppo", backend="jax"))
     from vnhc_gym.training.run_jax import train_seeds
 
     with pytest.raises(ValueError, match="distinct"):

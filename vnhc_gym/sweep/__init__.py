@@ -1,8 +1,8 @@
 """A grid of training-and-evaluation runs, on one machine or a Ray cluster, resumable, and its report.
 
 A run is one `RunSpec`: a learned agent (``ppo``, ``residual_ppo``, ``ppo_history``, ``sac``,
-``residual_sac``) trained and tested (on Stable-Baselines3, or PPO on the compiled backend,
-``backend="jax"``, reported as ``ppo-jax``), a classical baseline (``law``, ``tuned_law``, ``safe_law``,
+``residual_sac``) trained and tested (on Stable-Baselines3, or PPO and SAC on the compiled backend,
+``backend="jax"``, reported as ``ppo-jax``, ``sac-jax``), a classical baseline (``law``, ``tuned_law``, ``safe_law``,
 ``observer``, ``kalman``, ``adaptive``, ``mpc``) tuned on validation episodes and tested, or the
 headroom reference ``oracle`` (the sampled-data law on the true state and parameters), tuned and
 tested the same way.  Every choice

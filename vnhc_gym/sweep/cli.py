@@ -24,9 +24,9 @@ def add_arguments(parser: Any) -> None:
     parser.add_argument("--address", help="Ray cluster address (default: $RAY_ADDRESS, else a local instance)")
     parser.add_argument("--jobs", type=int, help="local executor: parallel runs (default: 1)")
     parser.add_argument("--threads", type=int, help="torch threads per run (default: 1)")
-    parser.add_argument("--backend", choices=["sb3", "jax"], help="where PPO from scratch trains: sb3, or jax "
-                        "(compiled with its environment, a cell's seeds in one program); other learners train on "
-                        "sb3 (default: sb3)")
+    parser.add_argument("--backend", choices=["sb3", "jax"], help="where PPO and SAC from scratch train: sb3, or "
+                        "jax (compiled with the environment, a cell's seeds in one program); other learners train "
+                        "on sb3 (default: sb3)")
     parser.add_argument("--test-episodes", type=int, help="held-out test episodes per run (default: 20)")
     parser.add_argument("--report", metavar="DIR", help="only build the report of the runs in DIR")
 

@@ -21,10 +21,10 @@ PLANNING_ALGOS = ("mpc",)
 REFERENCE_ALGOS = ("oracle",)
 ALL_ALGOS = LEARNED_ALGOS + CLASSICAL_ALGOS + REFERENCE_ALGOS
 #: Where a learned run trains: Stable-Baselines3 (and SBX), or compiled with its environment
-#: (`vnhc_gym.training.run_jax`, PPO only).  Classical runs have no backend.
+#: (`vnhc_gym.training.run_jax`: PPO and SAC).  Classical runs have no backend.
 SWEEP_BACKENDS = ("sb3", "jax")
 #: The learned agents the compiled backend trains.
-COMPILED_ALGOS = ("ppo",)
+COMPILED_ALGOS = ("ppo", "sac")
 
 
 def label(algo: str, backend: str = "sb3") -> str:

@@ -180,7 +180,7 @@ class AgentPolicy:
 
 def load_agent(path_or_name: str | Path, env: Any = None) -> AgentPolicy:
     """Load a saved agent (a shipped name such as ``"usv-ppo"``, a path to an SB3 ``.zip``, or to a
-    compiled PPO's ``.npz``, `vnhc_gym.training.run_jax`).
+    compiled PPO's or SAC's ``.npz``, `vnhc_gym.training.run_jax`).
 
     ``env`` binds a residual agent's base controller (default: an environment made from the
     sidecar's env id and scenario).
@@ -192,7 +192,7 @@ def load_agent(path_or_name: str | Path, env: Any = None) -> AgentPolicy:
         if not p.exists():
             raise FileNotFoundError(f"no agent {path_or_name!r}")
         meta = sidecar_of(p)
-        return AgentPolicy(JaxActor.load(p, str(meta.get("activation", "Tanh"))), meta)
+        return AgentPolicy(JaxActor.load(p, str(meta.get("activation", "Tanh")), str(meta.get("squash", "clip"))), meta)
     if p.suffix != ".zip" and not p.exists() and (ZOO_DIR / f"{p.name}.zip").exists():
         p = ZOO_DIR / f"{p.name}.zip"
     elif p.suffix != ".zip":

@@ -1,5 +1,5 @@
 """A training run's configuration, shared by both training backends (`vnhc_gym.training.run` for
-Stable-Baselines3 and SBX, `vnhc_gym.training.run_jax` for the compiled PPO): the settings, the
+Stable-Baselines3 and SBX, `vnhc_gym.training.run_jax` for the compiled PPO and SAC): the settings, the
 run's file stem, the hyperparameters it reads, and the sidecar's common fields."""
 
 from __future__ import annotations
@@ -20,10 +20,11 @@ __all__ = ["ALGOS", "BACKENDS", "JAX_ALGOS", "SIDECAR_FORMAT", "TrainConfig", "c
 #: Algorithms of ``vnhc-gym train``, each with its RL Zoo file ``agents/hyperparams/<algo>.yml``.
 ALGOS = ("ppo", "residual_ppo", "recurrent_ppo", "sac", "residual_sac")
 SIDECAR_FORMAT = "vnhc_gym-agent/2"
-#: Training backends: Stable-Baselines3 (and SBX), or the compiled PPO (`vnhc_gym.training.ppo_jax`).
+#: Training backends: Stable-Baselines3 (and SBX), or the compiled PPO and SAC (`vnhc_gym.training.ppo_jax`,
+#: `sac_jax`).
 BACKENDS = ("sb3", "jax")
 #: The algorithms the ``"jax"`` backend trains.
-JAX_ALGOS = ("ppo",)
+JAX_ALGOS = ("ppo", "sac")
 
 
 def resolve_env_id(env: str) -> str:

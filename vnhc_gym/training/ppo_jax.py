@@ -391,23 +391,16 @@ def iteration(env: FunctionalEnv, env_params: EnvParams, s: PPOSettings, ts: Tra
     return new, jnp.mean(tr.raw_reward)
 
 
-def iterations(env: FunctionalEnv, env_params: EnvParams, s: PPOSettings, ts: TrainState, count: int,
-               start: Array) -> tuple[TrainState, Array]:
-    """``count`` iterations from iteration ``start`` (those past the run's last one do nothing, so
-    that every chunk of a run is the same program).  Returns the state and each iteration's mean
-    raw reward.
+def iterations(env: FunctionalEnv, env_params: EnvParams, s: PPOSettings, ts: TrainState, count: int
+               ) -> tuple[TrainState, Array]:
+    """``count`` iterations (those past the run's last one do nothing, so that every chunk of a run
+    is the same program).  Returns the state and each iteration's mean raw reward."""
 
-    ``start`` is the iteration count of every seed (they advance together): passed unbatched under
-    the ``jax.vmap`` over seeds, it keeps the check a real branch; a check on each seed's own count
-    would be batched into a select that runs the iteration anyway and costs about two seconds
-    more to trace and compile (measured on the boat).
-    """
-
-    def one(ts: TrainState, i: Array) -> tuple[TrainState, Array]:
-        return jax.lax.cond(start + i < s.n_iterations, partial(iteration, env, env_params, s),
+    def one(ts: TrainState, _: None) -> tuple[TrainState, Array]:
+        return jax.lax.cond(ts.iteration < s.n_iterations, partial(iteration, env, env_params, s),
                             lambda t: (t, jnp.float32(jnp.nan)), ts)
 
-    return jax.lax.scan(one, ts, jnp.arange(count))
+    return jax.lax.scan(one, ts, None, length=count)
 
 
 def validation_scores(env: FunctionalEnv, env_params: EnvParams, params: Params, keys: Array, activation: str,

@@ -154,7 +154,7 @@ def train(cfg: TrainConfig | None = None, log: Callable[[str], None] | None = No
     ``on_validation`` gets each validation's point of the learning curve (``steps``, ``score``, ...)
     and may raise to stop the run (a hyperparameter search prunes a trial this way).  With
     ``test_episodes=0`` nothing is tested (the sidecar's ``test`` is ``None``): how a search that
-    must never see the test episodes trains.  ``backend="jax"`` trains PPO compiled with its
+    must never see the test episodes trains.  ``backend="jax"`` trains PPO or SAC compiled with their
     environment (`vnhc_gym.training.run_jax`, which also trains several seeds in one program).
     """
     cfg = cfg or TrainConfig(**kwargs)

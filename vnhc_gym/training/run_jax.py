@@ -1,15 +1,17 @@
-"""Training runs on the compiled PPO (`vnhc_gym.training.ppo_jax`): several seeds in one program,
-validated while they learn and tested on held-out episodes, with the files of an SB3 run.
+"""Training runs on the compiled PPO and SAC (`vnhc_gym.training.ppo_jax`, `sac_jax`): several
+seeds in one program, validated while they learn and tested on held-out episodes, with the files of
+an SB3 run.
 
 ``vnhc-gym train --backend jax --algo ppo --env usv --seeds 0 1 2`` (or `train_seeds`) trains the
 seeds side by side (``jax.vmap`` over their keys), in chunks of iterations between validations.
-Each seed writes what an SB3 run writes, under the same stem (``<task>-<scenario>-ppo-s<seed>``):
+Each seed writes what an SB3 run writes, under the same stem (``<task>-<scenario>-<algo>-s<seed>``):
 
 * ``<stem>.npz``: the networks with the best validation score, ``<stem>-final.npz`` those at the
   end.  The arrays are named ``pi.<i>.w``, ``pi.<i>.b`` (hidden layers), ``pi_out.w``,
-  ``pi_out.b``, ``log_std``, and the same for the value network (``vf``); the action is
-  ``clip(pi_out(act(...act(obs @ pi.0.w + pi.0.b)...)), -1, 1)`` with the sidecar's ``activation``.
-  No pickles: `load_agent` loads one from anywhere without a warning;
+  ``pi_out.b``, and ``log_std`` and the value network (``vf``) for PPO, ``log_std_out.w``,
+  ``log_std_out.b`` for SAC; the action is ``clip(pi_out(act(...act(obs @ pi.0.w + pi.0.b)...)),
+  -1, 1)`` (PPO) or its ``tanh`` (SAC, the sidecar's ``squash``) with the sidecar's
+  ``activation``.  No pickles: `load_agent` loads one from anywhere without a warning;
 * ``<stem>.json``: the sidecar, as SB3 runs have it, with ``backend: "jax"``; its
   ``steps_per_second`` counts all seeds of the program and the compilation (``compile_wall``),
   ``steps_per_second_compiled`` leaves the compilation out.
@@ -41,6 +43,7 @@ import vnhc_gym
 from vnhc_gym.envs.functional import make_jax
 from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate
 from vnhc_gym.training import ppo_jax as P
+from vnhc_gym.training import sac_jax as S
 from vnhc_gym.training.config import (
     JAX_ALGOS,
     SIDECAR_FORMAT,
@@ -54,6 +57,9 @@ from vnhc_gym.training.config import (
 
 __all__ = ["JaxActor", "train_seeds"]
 
+#: The checkpoint's arrays, by algorithm (the sidecar's ``checkpoint_format``).
+CHECKPOINT_FORMATS = {"ppo": "npz: pi.<i>.w/b, pi_out.w/b, log_std, vf.<i>.w/b, vf_out.w/b",
+                      "sac": "npz: pi.<i>.w/b, pi_out.w/b, log_std_out.w/b; action tanh(pi_out)"}
 #: The time the validation and test episodes last (s): `evaluate`'s default horizon.
 EPISODE_TIME = 20.0
 _NUMPY_ACTIVATIONS: dict[str, Callable[[Any], Any]] = {
@@ -62,28 +68,37 @@ _NUMPY_ACTIVATIONS: dict[str, Callable[[Any], Any]] = {
 
 
 class JaxActor:
-    """A compiled PPO's policy network in numpy (what `load_agent` returns inside an `AgentPolicy`).
+    """A compiled PPO's or SAC's policy network in numpy (what `load_agent` returns inside an
+    `AgentPolicy`).
 
     ``predict(obs) -> (action, None)``: the deterministic action, the network's mean clipped to
-    ``[-1, 1]``, for one observation or a batch (SB3's interface).
+    ``[-1, 1]`` (``squash="clip"``, PPO) or its ``tanh`` (``squash="tanh"``, SAC), for one
+    observation or a batch (SB3's interface).  ``deterministic=False`` samples the Gaussian (its
+    log standard deviation ``log_std``, or the head ``log_std_out``) before the squash.
     """
 
-    def __init__(self, arrays: dict[str, NDArray[np.float32]], activation: str = "Tanh") -> None:
+    def __init__(self, arrays: dict[str, NDArray[np.float32]], activation: str = "Tanh", squash: str = "clip") -> None:
         if activation not in _NUMPY_ACTIVATIONS:
             raise ValueError(f"activation must be one of {sorted(_NUMPY_ACTIVATIONS)}, got {activation!r}")
+        if squash not in ("clip", "tanh"):
+            raise ValueError(f"squash must be 'clip' or 'tanh', got {squash!r}")
         hidden = sorted({int(k.split(".")[1]) for k in arrays if k.startswith("pi.")})
-        if hidden != list(range(len(hidden))) or "pi_out.w" not in arrays:
-            raise ValueError(f"not a compiled PPO's networks: arrays {sorted(arrays)}")
+        if (hidden != list(range(len(hidden))) or "pi_out.w" not in arrays
+                or not ({"log_std"} <= set(arrays) or {"log_std_out.w", "log_std_out.b"} <= set(arrays))):
+            raise ValueError(f"not a compiled PPO's or SAC's networks: arrays {sorted(arrays)}")
         self.layers = [(np.asarray(arrays[f"pi.{i}.w"], np.float32), np.asarray(arrays[f"pi.{i}.b"], np.float32))
                        for i in hidden]
         self.out = (np.asarray(arrays["pi_out.w"], np.float32), np.asarray(arrays["pi_out.b"], np.float32))
-        self.log_std = np.asarray(arrays["log_std"], np.float32)
+        self.log_std = np.asarray(arrays["log_std"], np.float32) if "log_std" in arrays else None
+        self.log_std_out = ((np.asarray(arrays["log_std_out.w"], np.float32),
+                             np.asarray(arrays["log_std_out.b"], np.float32)) if self.log_std is None else None)
         self.act = _NUMPY_ACTIVATIONS[activation]
+        self.squash = squash
 
     @classmethod
-    def load(cls, path: str | Path, activation: str = "Tanh") -> JaxActor:
+    def load(cls, path: str | Path, activation: str = "Tanh", squash: str = "clip") -> JaxActor:
         with np.load(path, allow_pickle=False) as data:
-            return cls({k: data[k] for k in data.files}, activation)
+            return cls({k: data[k] for k in data.files}, activation, squash)
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[NDArray[np.float32], Any]:
@@ -92,8 +107,13 @@ class JaxActor:
             x = self.act(x @ w + b)
         mean = x @ self.out[0] + self.out[1]
         if not deterministic:
-            mean = mean + np.exp(self.log_std) * np.random.default_rng().standard_normal(mean.shape)
-        return np.clip(mean, -1.0, 1.0).astype(np.float32), state
+            if self.log_std_out is not None:
+                log_std = np.clip(x @ self.log_std_out[0] + self.log_std_out[1], S.LOG_STD_MIN, S.LOG_STD_MAX)
+            else:
+                log_std = self.log_std
+            mean = mean + np.exp(log_std) * np.random.default_rng().standard_normal(mean.shape)
+        action = np.tanh(mean) if self.squash == "tanh" else np.clip(mean, -1.0, 1.0)
+        return action.astype(np.float32), state
 
 
 def _save(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -106,7 +126,7 @@ def _save(path: Path, arrays: dict[str, np.ndarray]) -> None:
 def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], None] | None = None,
                 on_validation: Callable[[dict[str, float]], None] | None = None,
                 names: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    """Train ``cfg`` (with ``algo="ppo"``) once per seed, all seeds in one compiled
+    """Train ``cfg`` (``algo`` ``"ppo"`` or ``"sac"``) once per seed, all seeds in one compiled
     program, and return the sidecars in the order of ``seeds``.
 
     ``on_validation`` gets each validation point of the first seed (as `train`'s).  Seed ``s``
@@ -130,7 +150,9 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
     hp, cfg = hyperparams_of(cfg, env_id)
     if cfg.n_timesteps is not None:
         hp["n_timesteps"] = int(cfg.n_timesteps)
-    settings = P.settings_from(hp, f"{cfg.algo} hyperparameters of {env_id}")
+    algo = P if cfg.algo == "ppo" else S
+    settings = algo.settings_from(hp, f"{cfg.algo} hyperparameters of {env_id}")
+    activation, squash = (settings.activation, "clip") if cfg.algo == "ppo" else ("ReLU", "tanh")
     env, env_params = make_jax(env_id, cfg.scenario, **cfg.env_kwargs)
     val_env, val_params = make_jax(env_id, cfg.scenario)
     horizon = max(1, round(EPISODE_TIME / float(val_params.dt)))
@@ -140,17 +162,19 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
     out_dir = Path(cfg.out)
     out_dir.mkdir(parents=True, exist_ok=True)
 
-    run_chunk = jax.jit(jax.vmap(lambda ts, start: P.iterations(env, env_params, settings, ts, chunk, start),
-                                 in_axes=(0, None)))
-    validate = jax.jit(jax.vmap(lambda p: P.validation_scores(val_env, val_params, p, val_keys, settings.activation,
-                                                              horizon)))
+    run_chunk = jax.jit(jax.vmap(lambda ts: algo.iterations(env, env_params, settings, ts, chunk)))
+    if cfg.algo == "ppo":
+        validate = jax.jit(jax.vmap(lambda p: P.validation_scores(val_env, val_params, p, val_keys, activation,
+                                                                  horizon)))
+    else:
+        validate = jax.jit(jax.vmap(lambda p: S.validation_scores(val_env, val_params, p, val_keys, horizon)))
     stems = list(names) if names is not None else [run_stem(replace(cfg, seed=s), env_id) for s in seeds]
     metas = [{"format": SIDECAR_FORMAT, "backend": "jax", "name": stem, "algo": cfg.algo, "env_id": env_id,
               "scenario": cfg.scenario, "seed": s, "n_envs": settings.n_envs, "n_timesteps": settings.n_timesteps,
               "config": {**asdict(cfg), "seed": s}, "hyperparams": jsonable(hp), "policy": "MlpPolicy",
-              "activation": settings.activation, "normalize": jsonable(hp.get("normalize", False)),
+              "activation": activation, "squash": squash, "normalize": jsonable(hp.get("normalize", False)),
               "residual": None, "version": vnhc_gym.__version__, "code": code_fingerprint(), "obs_rms": None,
-              "frame_stack": 1, "checkpoint_format": "npz: pi.<i>.w/b, pi_out.w/b, log_std, vf.<i>.w/b, vf_out.w/b"}
+              "frame_stack": 1, "checkpoint_format": CHECKPOINT_FORMATS[cfg.algo]}
              for s, stem in zip(seeds, stems, strict=True)]
     curves: list[list[dict[str, float]]] = [[] for _ in seeds]
     best = [-math.inf] * len(seeds)
@@ -172,30 +196,30 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
                     f"{point['score']:.4f} (success {point['success']:.2f})")
             if point["score"] > best[i]:  # strictly better only: at a tie the earlier stays
                 best[i] = point["score"]
-                _save(out_dir / f"{meta['name']}.npz", P.to_numpy(jax.tree.map(lambda x, i=i: x[i], params)))
+                _save(out_dir / f"{meta['name']}.npz", algo.to_numpy(jax.tree.map(lambda x, i=i: x[i], params)))
                 meta["best_steps"] = steps
         t_eval += time.perf_counter() - t0
         if on_validation is not None:
             on_validation(curves[0][-1])
 
-    ts = P.init(jnp.stack([jax.random.key(s) for s in seeds]), env, env_params, settings)
+    ts = algo.init(jnp.stack([jax.random.key(s) for s in seeds]), env, env_params, settings)
     check(ts)
     t0 = time.perf_counter()
-    step_chunk = run_chunk.lower(ts, jnp.int32(0)).compile()
+    step_chunk = run_chunk.lower(ts).compile()
     compile_wall = time.perf_counter() - t0
-    while (done := int(np.asarray(ts.iteration)[0])) < n_iter:
-        ts, _ = step_chunk(ts, jnp.int32(done))
+    while int(np.asarray(ts.iteration)[0]) < n_iter:
+        ts, _ = step_chunk(ts)
         jax.block_until_ready(ts)  # else the chunk's time would be counted in the validation's
         check(ts)
     train_wall = time.perf_counter() - t_start - t_eval
     params = jax.device_get(ts.params)
     for i, meta in enumerate(metas):
-        _save(out_dir / f"{meta['name']}-final.npz", P.to_numpy(jax.tree.map(lambda x, i=i: x[i], params)))
+        _save(out_dir / f"{meta['name']}-final.npz", algo.to_numpy(jax.tree.map(lambda x, i=i: x[i], params)))
         test = None
         if cfg.test_episodes > 0:  # the test: the best validated networks, on the held-out seeds
             from vnhc_gym.training.agents import AgentPolicy
 
-            agent = AgentPolicy(JaxActor.load(out_dir / f"{meta['name']}.npz", settings.activation), meta)
+            agent = AgentPolicy(JaxActor.load(out_dir / f"{meta['name']}.npz", activation, squash), meta)
             result = evaluate(agent, env_id, cfg.scenario, n_episodes=cfg.test_episodes, seed=TEST_SEED)
             test = {k: v for k, v in result.to_dict().items() if k in ("metrics", "summary", "seed", "n_episodes")}
         steps = int(np.asarray(ts.iteration)[i]) * settings.rollout
