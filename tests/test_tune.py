@@ -96,10 +96,11 @@ def test_a_classical_study_scores_its_winner_on_validation_episodes(tmp_path: Pa
 @pytest.mark.parametrize(("field", "value", "match"), [
     ("algo", "td3", "algo must be one of"), ("trials", 0, "trials must be a positive integer"),
     ("n_timesteps", 1.5, "n_timesteps must be a positive integer"), ("repeats", True, "repeats"),
-    ("backend", "tf", "backend must be one of"), ("backend", "jax", r"trains \['ppo'\]; 'sac' trains with"),
+    ("backend", "tf", "backend must be one of"),
+    ("backend", "jax", r"trains \['ppo', 'sac'\]; 'residual_sac' trains with"),
 ])
 def test_bad_configuration_is_refused_by_name(tmp_path: Path, field: str, value: Any, match: str) -> None:
-    algo = {"algo": "sac"} if field == "backend" else {}
+    algo = {"algo": "residual_sac"} if field == "backend" else {}
     with pytest.raises(ValueError, match=match):
         tune(TuneConfig(out=str(tmp_path), **{field: value, **algo}), log=None)
 
@@ -120,6 +121,25 @@ def test_a_study_on_the_compiled_backend_writes_a_file_the_compiled_trainer_read
     settings = settings_from(hp, "the winner")
     assert settings.learning_rate == summary["best_params"]["learning_rate"]
     assert settings.net_arch == (summary["best_params"]["width"],) * 2
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_every_sampled_trial_is_a_file_the_compiled_trainer_accepts(algo: str) -> None:
+    """A study on the compiled backend samples only keys and values that trainer reads: 30 random trials
+    of the search space, each merged into the shipped file as a study does, are read without error."""
+    import optuna
+
+    from vnhc_gym.training import ppo_jax, sac_jax
+    from vnhc_gym.training.tune import SPACES, _merge
+
+    settings_from = {"ppo": ppo_jax.settings_from, "sac": sac_jax.settings_from}[algo]
+    base = load_hyperparams(algo, "vnhc_gym/USVStream-v1")
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0))
+    for _ in range(30):
+        trial = study.ask()
+        hp = _merge(base, SPACES[algo](trial))
+        settings_from(hp)
+        study.tell(trial, 0.0)
 
 
 @pytest.mark.parametrize(("choice", "expected"), [("auto", -1.0), ("-5", -5.0)])

@@ -5,6 +5,7 @@ unfinished run, in this process, in worker processes or on Ray) and the GPUs a r
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import time
 import traceback
@@ -224,7 +225,9 @@ def run_sweep(specs: Iterable[RunSpec], out: str | Path, *, executor: str = "loc
                 if err:
                     log(f"sweep: {stem} failed:\n{err.strip().splitlines()[-1]}")
         return result
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
+    # Workers are spawned, not forked: a fork of a process in which JAX's threads run can deadlock
+    # (JAX warns of it), and the parent has imported JAX whenever a task or the compiled trainer did.
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = [pool.submit(_guarded, u, out, threads, packages) for u in units(todo)]
         for fut in as_completed(futures):
             for stem, err in fut.result():

@@ -3,7 +3,7 @@ on validation episodes only.
 
 One study searches one algorithm in one cell (task, scenario). A trial of a learner trains it with
 sampled hyperparameters (`SPACES`) for ``n_timesteps`` env steps (on Stable-Baselines3, or with
-``backend="jax"`` a PPO compiled with its environment), ``repeats`` times with training seeds 0, 1,
+``backend="jax"`` PPO or SAC compiled with its environment), ``repeats`` times with training seeds 0, 1,
 ..., validating ``eval_points`` times along each run on the validation episodes (seeds from 5 000);
 its value is the mean over the repeats of the best validation ``score`` (the score of the checkpoint
 a run would keep). A trial of a classical baseline evaluates its sampled gains on the same
@@ -118,7 +118,7 @@ class TuneConfig:
     study: str | None = None  #: the study's name (default ``<task>-<scenario>-<algo>``)
     out: str = "tuned"
     threads: int = 1  #: torch threads per training run
-    #: a learner's training backend: ``"sb3"`` or ``"jax"`` (PPO compiled with its environment)
+    #: a learner's training backend: ``"sb3"`` or ``"jax"`` (PPO or SAC compiled with its environment)
     backend: str = "sb3"
     env_kwargs: dict[str, Any] = field(default_factory=dict)  #: the training environments' arguments only
 
@@ -302,7 +302,7 @@ def add_arguments(parser: Any) -> None:
     parser.add_argument("--out", default=d.out, help=f"output folder (default {d.out})")
     parser.add_argument("--threads", type=int, default=d.threads, help="torch threads per training run")
     parser.add_argument("--backend", default=d.backend, choices=["sb3", "jax"],
-                        help="a learner's training backend: sb3, or jax for PPO compiled with its environment "
+                        help="a learner's training backend: sb3, or jax for PPO or SAC compiled with its environment "
                              f"(default {d.backend})")
     parser.add_argument("--env-kwargs", nargs="*", default=[], metavar="KEY:VALUE",
                         help="arguments of the training environments only (e.g. reward:reciprocal); validation "
