@@ -20,6 +20,15 @@ pytestmark = pytest.mark.xdist_group("test_ppo_jax")
 PPO_FILE_IDS = env_ids("ppo")
 
 
+def test_this_module_runs_on_one_worker(request: pytest.FixtureRequest) -> None:
+    """Under ``--dist loadgroup`` the module's tests carry its group, so one worker builds its fixture."""
+    import os
+
+    if os.environ.get("PYTEST_XDIST_WORKER") is None or not getattr(request.config.option, "loadgroup", False):
+        pytest.skip("runs only under pytest-xdist's --dist loadgroup")
+    assert request.node.nodeid.endswith("@test_ppo_jax"), request.node.nodeid
+
+
 # ---------------------------------------------------------------------------------------------- settings
 @pytest.mark.parametrize("env_id", PPO_FILE_IDS)
 def test_every_shipped_ppo_section_is_read(env_id: str) -> None:
