@@ -400,3 +400,28 @@ def _as_int(value: Any, key: str, where: str) -> int:
             or value != int(value) or value < 1):
         raise ValueError(f"{where}: {key} must be a positive whole number, got {value!r}")
     return int(value)
+
+
+def checked_section(hp: Mapping[str, Any], known: frozenset[str], known_policy_kwargs: frozenset[str], trainer: str,
+                    where: str) -> dict[str, Any]:
+    """A file's section checked against what a trainer reads; returns its ``policy_kwargs``.
+
+    Raises
+    ------
+    ValueError
+        Naming every key of the section (and of its ``policy_kwargs``) outside ``known``
+        (``known_policy_kwargs``), and a policy other than ``MlpPolicy``: a key a trainer does not
+        implement is an error, never ignored.
+    """
+    unknown = sorted(set(hp) - known)
+    if unknown:
+        raise ValueError(f"{where}: {trainer} does not implement {unknown}; it reads {sorted(known)} "
+                         f"(train with backend 'sb3' for the others)")
+    if hp.get("policy", "MlpPolicy") != "MlpPolicy":
+        raise ValueError(f"{where}: {trainer} trains an MlpPolicy, got policy {hp['policy']!r}")
+    policy_kwargs = dict(hp.get("policy_kwargs") or {})
+    unknown = sorted(set(policy_kwargs) - known_policy_kwargs)
+    if unknown:
+        raise ValueError(f"{where}: policy_kwargs {unknown} are not implemented by {trainer} "
+                         f"(it reads {sorted(known_policy_kwargs)})")
+    return policy_kwargs

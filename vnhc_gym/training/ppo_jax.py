@@ -35,9 +35,10 @@ import numpy as np
 import optax
 
 from vnhc_gym.envs.functional import EnvParams, EnvState, FunctionalEnv
+from vnhc_gym.training.hyperparams import checked_section
 
 __all__ = ["KNOWN_KEYS", "PPOSettings", "TrainState", "actor_apply", "gae", "init", "init_params", "iteration",
-           "iterations", "settings_from", "shuffle", "to_numpy", "validation_scores"]
+           "iterations", "settings_from", "shuffle", "to_numpy"]
 
 Array = Any  # a jax.Array
 Params = dict[str, Any]
@@ -104,18 +105,8 @@ def settings_from(hp: Mapping[str, Any], where: str = "hyperparameters") -> PPOS
     that the compiled PPO does not implement, and a value it cannot honour (a policy other than
     ``MlpPolicy``, observation normalisation, a batch size that does not divide the rollout).
     """
-    unknown = sorted(set(hp) - KNOWN_KEYS)
-    if unknown:
-        raise ValueError(f"{where}: the compiled PPO (backend 'jax') does not implement {unknown}; "
-                         f"it reads {sorted(KNOWN_KEYS)} (train with backend 'sb3' for the others)")
-    if hp.get("policy", "MlpPolicy") != "MlpPolicy":
-        raise ValueError(f"{where}: the compiled PPO trains an MlpPolicy, got policy {hp['policy']!r}")
+    pk = checked_section(hp, KNOWN_KEYS, _POLICY_KWARGS, "the compiled PPO (backend 'jax')", where)
     kw: dict[str, Any] = {}
-    pk = dict(hp.get("policy_kwargs") or {})
-    unknown = sorted(set(pk) - _POLICY_KWARGS)
-    if unknown:
-        raise ValueError(f"{where}: policy_kwargs {unknown} are not implemented by the compiled PPO "
-                         f"(it reads {sorted(_POLICY_KWARGS)})")
     if "net_arch" in pk:
         arch = pk["net_arch"]
         if isinstance(arch, dict):
@@ -401,30 +392,6 @@ def iterations(env: FunctionalEnv, env_params: EnvParams, s: PPOSettings, ts: Tr
                             lambda t: (t, jnp.float32(jnp.nan)), ts)
 
     return jax.lax.scan(one, ts, None, length=count)
-
-
-def validation_scores(env: FunctionalEnv, env_params: EnvParams, params: Params, keys: Array, activation: str,
-                      horizon: int) -> tuple[Array, Array]:
-    """The deterministic policy's ``score`` (the return over ``horizon`` steps per step, the steps
-    after an early end counting 0) and whether it finished, on the episodes drawn with ``keys``."""
-
-    def episode(key: Array) -> tuple[Array, Array]:
-        k_reset, k_steps = jax.random.split(key)
-        obs, state = env.reset(k_reset, env_params)
-
-        def step(carry: tuple[Any, ...], k: Array) -> tuple[tuple[Any, ...], None]:
-            state, obs, total, alive = carry
-            a = jnp.clip(actor_apply(params, obs.astype(jnp.float32), activation), -1.0, 1.0)
-            new, out = env.transition(k, state, a, env_params)
-            total = total + jnp.where(alive, out.reward, 0.0)
-            return (new, out.obs, total, alive & ~out.terminated), None
-
-        zero = jnp.zeros((), obs.dtype)
-        (_, _, total, alive), _ = jax.lax.scan(step, (state, obs, zero, jnp.ones((), bool)),
-                                               jax.random.split(k_steps, horizon))
-        return total / horizon, alive
-
-    return jax.vmap(episode)(keys)
 
 
 def to_numpy(params: Params) -> dict[str, np.ndarray]:

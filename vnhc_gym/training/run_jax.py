@@ -116,6 +116,30 @@ class JaxActor:
         return action.astype(np.float32), state
 
 
+def validation_scores(env: Any, env_params: Any, act: Callable[[Any], Any], keys: Any, horizon: int
+                      ) -> tuple[Any, Any]:
+    """A deterministic policy's ``score`` (the return over ``horizon`` steps per step, the steps
+    after an early end counting 0) and whether it finished, on the episodes drawn with ``keys``;
+    ``act`` maps an observation to the policy's action.  Pure JAX: compiled with the run."""
+
+    def episode(key: Any) -> tuple[Any, Any]:
+        k_reset, k_steps = jax.random.split(key)
+        obs, state = env.reset(k_reset, env_params)
+
+        def step(carry: tuple[Any, ...], k: Any) -> tuple[tuple[Any, ...], None]:
+            state, obs, total, alive = carry
+            new, out = env.transition(k, state, act(obs.astype(jnp.float32)), env_params)
+            total = total + jnp.where(alive, out.reward, 0.0)
+            return (new, out.obs, total, alive & ~out.terminated), None
+
+        zero = jnp.zeros((), obs.dtype)
+        (_, _, total, alive), _ = jax.lax.scan(step, (state, obs, zero, jnp.ones((), bool)),
+                                               jax.random.split(k_steps, horizon))
+        return total / horizon, alive
+
+    return jax.vmap(episode)(keys)
+
+
 def _save(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """Written whole or not at all: a run stopped mid-write never leaves a truncated checkpoint."""
     tmp = path.with_name(path.name + ".tmp.npz")
@@ -164,10 +188,13 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
 
     run_chunk = jax.jit(jax.vmap(lambda ts: algo.iterations(env, env_params, settings, ts, chunk)))
     if cfg.algo == "ppo":
-        validate = jax.jit(jax.vmap(lambda p: P.validation_scores(val_env, val_params, p, val_keys, activation,
-                                                                  horizon)))
+        def act(p: Any, obs: Any) -> Any:  # the Gaussian's mean, clipped to the action box as SB3 clips
+            return jnp.clip(P.actor_apply(p, obs, activation), -1.0, 1.0)
     else:
-        validate = jax.jit(jax.vmap(lambda p: S.validation_scores(val_env, val_params, p, val_keys, horizon)))
+        def act(p: Any, obs: Any) -> Any:  # the squashed Gaussian's mean
+            return jnp.tanh(S.actor_apply(p, obs)[0])
+    validate = jax.jit(jax.vmap(lambda p: validation_scores(val_env, val_params, lambda o: act(p, o), val_keys,
+                                                            horizon)))
     stems = list(names) if names is not None else [run_stem(replace(cfg, seed=s), env_id) for s in seeds]
     metas = [{"format": SIDECAR_FORMAT, "backend": "jax", "name": stem, "algo": cfg.algo, "env_id": env_id,
               "scenario": cfg.scenario, "seed": s, "n_envs": settings.n_envs, "n_timesteps": settings.n_timesteps,

@@ -37,9 +37,10 @@ import numpy as np
 import optax
 
 from vnhc_gym.envs.functional import EnvParams, EnvState, FunctionalEnv
+from vnhc_gym.training.hyperparams import checked_section
 
 __all__ = ["KNOWN_KEYS", "Learner", "SACSettings", "TrainState", "actor_apply", "init", "iterations", "settings_from",
-           "to_numpy", "validation_scores"]
+           "to_numpy"]
 
 Array = Any  # a jax.Array
 Params = dict[str, Any]
@@ -92,18 +93,8 @@ def settings_from(hp: Mapping[str, Any], where: str = "hyperparameters") -> SACS
     Raises ``ValueError`` naming every key (of the section, of ``policy_kwargs``) that the compiled
     SAC does not implement, and a value it cannot honour.
     """
-    unknown = sorted(set(hp) - KNOWN_KEYS)
-    if unknown:
-        raise ValueError(f"{where}: the compiled SAC (backend 'jax') does not implement {unknown}; "
-                         f"it reads {sorted(KNOWN_KEYS)} (train with backend 'sb3' for the others)")
-    if hp.get("policy", "MlpPolicy") != "MlpPolicy":
-        raise ValueError(f"{where}: the compiled SAC trains an MlpPolicy, got policy {hp['policy']!r}")
+    pk = checked_section(hp, KNOWN_KEYS, _POLICY_KWARGS, "the compiled SAC (backend 'jax')", where)
     kw: dict[str, Any] = {}
-    pk = dict(hp.get("policy_kwargs") or {})
-    unknown = sorted(set(pk) - _POLICY_KWARGS)
-    if unknown:
-        raise ValueError(f"{where}: policy_kwargs {unknown} are not implemented by the compiled SAC "
-                         f"(it reads {sorted(_POLICY_KWARGS)})")
     if "net_arch" in pk:
         if not isinstance(pk["net_arch"], (list, tuple)):
             raise ValueError(f"{where}: the compiled SAC needs net_arch as one list for actor and critics, "
@@ -353,31 +344,6 @@ def iterations(env: FunctionalEnv, env_params: EnvParams, s: SACSettings, ts: Tr
     """``count`` iterations (those past the run's last one do nothing, so that every chunk of a run
     is the same program).  Returns the state and each iteration's mean reward."""
     return jax.lax.scan(lambda t, _: iteration(env, env_params, s, t), ts, None, length=count)
-
-
-def validation_scores(env: FunctionalEnv, env_params: EnvParams, params: Params, keys: Array, horizon: int
-                      ) -> tuple[Array, Array]:
-    """The deterministic policy's ``score`` (``tanh`` of the mean; the return over ``horizon`` steps
-    per step, the steps after an early end counting 0) and whether it finished, on the episodes
-    drawn with ``keys``."""
-
-    def episode(key: Array) -> tuple[Array, Array]:
-        k_reset, k_steps = jax.random.split(key)
-        obs, state = env.reset(k_reset, env_params)
-
-        def step(carry: tuple[Any, ...], k: Array) -> tuple[tuple[Any, ...], None]:
-            state, obs, total, alive = carry
-            a = jnp.tanh(actor_apply(params, obs.astype(jnp.float32))[0])
-            new, out = env.transition(k, state, a, env_params)
-            total = total + jnp.where(alive, out.reward, 0.0)
-            return (new, out.obs, total, alive & ~out.terminated), None
-
-        zero = jnp.zeros((), obs.dtype)
-        (_, _, total, alive), _ = jax.lax.scan(step, (state, obs, zero, jnp.ones((), bool)),
-                                               jax.random.split(k_steps, horizon))
-        return total / horizon, alive
-
-    return jax.vmap(episode)(keys)
 
 
 def to_numpy(params: Params) -> dict[str, np.ndarray]:
