@@ -74,7 +74,8 @@ def test_every_reward_shape_survives_random_steps(env_id: str) -> None:
         env.reset(seed=0)
         rewards = []
         for _ in range(40):
-            obs, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, env.action_space.shape))
+            action = rng.uniform(-1, 1, env.action_space.shape)
+            obs, reward, terminated, truncated, info = env.step(action)
             assert np.all(np.isfinite(obs)), (name, value, obs)
             rewards.append(reward)
             if terminated or truncated:
@@ -82,6 +83,6 @@ def test_every_reward_shape_survives_random_steps(env_id: str) -> None:
         assert all(low <= r <= high for r in rewards), (name, value, min(rewards), max(rewards))
         if cfg.reward == "reciprocal":  # 1 / (1 + x) from the step's own |phi~|: the shape is the one asked for
             sigma = cfg.reward_sigma if cfg.reward_sigma is not None else env.unwrapped.task.reward_sigma
-            cost = cfg.action_cost * np.mean(env.unwrapped.batch.buf.action[0] ** 2)
+            cost = cfg.action_cost * np.mean(action**2)
             expected = 1.0 / (1.0 + info["abs_phi_sf"] / sigma) - cost
             assert rewards[-1] == pytest.approx(expected, rel=1e-9, abs=1e-12)

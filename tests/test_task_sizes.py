@@ -63,12 +63,14 @@ def test_the_unedited_module_is_made(tmp_path: Path) -> None:
 
 # (edit, what the error names): each edit makes one declared size wrong.
 CASES = {
-    "obs_dim smaller than observe writes": (("self.obs_dim = 6", "self.obs_dim = 4"),
-                                            ["'puck'", "obs_dim = 4"]),
-    "obs_dim larger than observe writes": (("self.obs_dim = 6", "self.obs_dim = 9"),
-                                           ["'puck'", "unwritten", "[6, 7, 8]", "obs_dim is 9"]),
-    "draw writes past the state": (("state[3] = omega * state[0]", "state[4] = omega * state[0]"),
-                                   ["'puck'", "draw", "state has 4 entries"]),
+    "obs_dim smaller than the observation": (("self.obs_dim = 6", "self.obs_dim = 4"),
+                                             ["'puck'", "observation returns shape (6,)", "(4,)"]),
+    "obs_dim larger than the observation": (("self.obs_dim = 6", "self.obs_dim = 9"),
+                                            ["'puck'", "observation returns shape (6,)", "(9,)"]),
+    "initial returns more than the state": (("omega * x + off[1]])", "omega * x + off[1], x])"),
+                                            ["'puck'", "initial returns shape (5,)", "(4,)"]),
+    "terminations that are not the declared reasons": (('{"off_table":', '{"off":'),
+                                                        ["'puck'", "terminations", "off_table"]),
     "impulse_mask of the wrong size": (("self.impulse_mask = np.ones(2)", "self.impulse_mask = np.ones(3)"),
                                        ["'puck'", "impulse_mask", "2 velocity entries"]),
 }

@@ -24,6 +24,14 @@ def test_the_tutorial_has_a_task_module_and_steps() -> None:
     assert len(blocks) >= 5
 
 
+def test_the_tutorials_task_is_at_most_80_lines_besides_its_card() -> None:
+    module = next(b for b in _blocks() if b.startswith("# puck_task.py"))
+    card = re.search(r'class PuckSwirlEnv\(ConstraintEnv\):\n    """.*?"""\n', module, re.S)
+    assert card is not None
+    lines = [line for line in module.replace(card.group(0), "").splitlines() if line.strip()]
+    assert len(lines) <= 80, len(lines)
+
+
 @pytest.mark.slow
 def test_the_tutorial_runs(tmp_path: Path) -> None:
     blocks = _blocks()

@@ -1,6 +1,6 @@
 """Environments built from a task definition: the single and vector envs, their configuration,
-episode kernels and runtime.  The environment classes themselves live in the task modules
-(`vnhc_gym.tasks`)."""
+the pure JAX step every task shares and the batch that runs it.  The environment classes
+themselves live in the task modules (`vnhc_gym.tasks`)."""
 
 from vnhc_gym.envs.config import SCENARIOS, EnvConfig, TaskOptions, option
 from vnhc_gym.envs.env import ConstraintEnv

@@ -1,69 +1,154 @@
-"""A batch of episodes of one task as arrays, and the compiled kernels that reset and step it.
+"""A batch of episodes of one task, run by the task's pure JAX functions, with numpy at the boundary.
 
-`Batch` is what both environment classes run on: a single environment is a batch of one,
-a native vector environment a batch of ``num_envs``.  Both therefore run the same compiled code,
-row for row, and a vector environment equals ``num_envs`` single ones seeded alike, bit for bit.
+`Batch` is what both environment classes run on: a single environment is a batch of one, a native
+vector environment a batch of ``num_envs``.  Both call the same compiled program, row for row, so a
+vector environment equals ``num_envs`` single ones seeded alike, bit for bit.
+
+The program is [`FunctionalEnv`][vnhc_gym.envs.functional.FunctionalEnv]'s ``initial`` and
+``transition`` (the step every task shares, around the task's own functions), batched with
+``jax.vmap`` and compiled with ``jax.jit`` in float64 (inside ``jax.enable_x64``, so a user's global
+JAX settings stay as they are).  Each episode's whole memory is one float64 row (its state, true and
+nominal parameters, observation, and the last step's outputs) and one random key; a step or a reset
+is one compiled call over all rows, with a mask of the rows it acts on.
 """
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-from types import ModuleType
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from functools import partial
+from typing import TYPE_CHECKING, Any, NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 from numpy.typing import NDArray
 
-from vnhc_gym import rng as _random_kernels
-from vnhc_gym.envs import episode
-from vnhc_gym.envs.episode import STATUS_NONFINITE, Buffers, accept_actions, step_config
-from vnhc_gym.mechanics import numerics as _mechanics_kernels
-from vnhc_gym.mechanics.cache import load_module
-from vnhc_gym.mechanics.codegen import fill_template, module_key
-from vnhc_gym.rng import entropy_states, seed_states
+from vnhc_gym.envs.functional import FEEDBACK, EnvParams, EnvState, FunctionalEnv
 
 if TYPE_CHECKING:
     from vnhc_gym.tasks.base import Task
 
-__all__ = ["Batch", "step_module"]
+__all__ = ["Batch", "Buffers", "seed_keys"]
 
-_TEMPLATE = Path(__file__).with_name("_step_template.py")
+STATUS_OK = 0
+STATUS_NONFINITE = 1  #: the state (or phi, or the observation) was not finite: the row kept its last finite state
+
+#: The fields of an episode's memory row, in order, and their sizes in terms of the task's dimensions
+#: (``n2`` state entries, ``P`` parameters, ``d`` observation entries, ``m`` controls).
+_FIELDS = (("state", "n2"), ("params_true", "P"), ("params_nominal", "P"), ("obs", "d"), ("steps", 1),
+           ("reward", 1), ("status", 1), ("phi", "m"), ("abs_phi", 1), ("abs_phi_sf", 1), ("force_applied", "m"),
+           ("next_state", "n2"))
 
 
-def step_module(task: Task) -> ModuleType:
-    """The generated step and reset kernels of ``task`` (its system module and its hooks).
+class Buffers(NamedTuple):
+    """The arrays of ``B`` episodes (row ``r`` is episode ``r``): views of the batch's memory, kept
+    current by every call."""
 
-    The key hashes the system module's name (itself a hash of the system), the task module's and
-    the episode kernels' text, and the template, so an edit of any of them compiles anew.
+    state: NDArray[np.float64]  #: (B, 2n) the state (q, qd): the last finite one
+    next_state: NDArray[np.float64]  #: (B, 2n) the state RK4 reached (not finite at a non-finite end)
+    params_true: NDArray[np.float64]  #: (B, n_params) the parameters that drive the dynamics
+    params_nominal: NDArray[np.float64]  #: (B, n_params) the parameters a controller is told
+    force_applied: NDArray[np.float64]  #: (B, m) the applied force, averaged over the substeps
+    phi: NDArray[np.float64]  #: (B, m) phi at the state, with the true parameters
+    obs: NDArray[np.float64]  #: (B, d) the observation (float64)
+    obs32: NDArray[np.float32]  #: (B, d) the observation the environment returns
+    reward: NDArray[np.float64]  #: (B,)
+    abs_phi: NDArray[np.float64]  #: (B,) mean_b |phi^b|
+    abs_phi_sf: NDArray[np.float64]  #: (B,) mean_b |phi~^b|
+    status: NDArray[np.int64]  #: (B,) 0, `STATUS_NONFINITE`, or 1 + the index of a task's reason
+    steps: NDArray[np.int64]  #: (B,) steps since the episode's start
+
+
+def seed_keys(seeds: list[int]) -> NDArray[np.uint32]:
+    """JAX's ``PRNGKey(seed)`` for each seed (``0 <= seed < 2**64``), as a ``(k, 2)`` uint32 array:
+    the seed's high and low 32 bits (threefry's key), computed here without a call into JAX."""
+    s = np.array(seeds, dtype=np.uint64)
+    return np.stack([(s >> np.uint64(32)).astype(np.uint32), (s & np.uint64(0xFFFFFFFF)).astype(np.uint32)], axis=1)
+
+
+class _Program(NamedTuple):
+    """The compiled reset and step of one task shape (shared by every batch of that shape)."""
+
+    reset: Callable[..., Any]
+    step: Callable[..., Any]
+    unravel: Callable[[Any], EnvParams]
+
+
+_PROGRAMS: dict[Any, _Program] = {}
+
+#: Rows are padded to a multiple of this (the float64 lanes of the widest vector unit, AVX-512).
+_LANES = 8
+
+
+def _program(env: FunctionalEnv, params: EnvParams, widths: dict[str, int]) -> _Program:
+    """The compiled functions of ``env``, for parameters of the structure of ``params``.
+
+    The parameters are an argument (one flat float64 vector), not constants of the program, so every
+    scenario, control period and noise level of a task shares one compilation.  The key is what the
+    program's code depends on: the task's functions and declarations, the loop count, the reward
+    shape, the feedback mode and the parameters' structure.
     """
-    system = task.model.compiled.__name__
-    hooks = type(task).__module__
-    hooks_file = sys.modules[hooks].__file__ or ""
-    sources: list[str | Path] = [_TEMPLATE, hooks_file, episode.__file__ or "", _random_kernels.__file__ or "",
-                                 _mechanics_kernels.__file__ or ""]
-    key = module_key(["step", system, hooks], sources)
-    block = (f"from {hooks} import draw, observe\n"
-             f"from {system} import N, _aux, _phi, rk4_held_row, rk4_row, work\n\n"
-             f"DRAW_STAGES = {int(task.draw_stages)}\nMISMATCH_STAGE = {int(task.mismatch_stage)}\n")
-    return load_module(key, lambda: fill_template(_TEMPLATE, "bindings", block, f"task {task.name!r}"),
-                       label=f"the {task.name} environment", required=("step", "step_feedback", "reset"))
+    t = env.task
+    leaves, treedef = jax.tree.flatten(params)
+    functions = tuple(_identity(f) for f in (t.initial, t.observation, t.terminations, t.task_params, t.scale_free))
+    key = (functions, t.system, t.reasons,
+           t.limits, t.impulse_mask, t.uncertain, t.obs_dim, env.substeps, env.reward, env.feedback, treedef,
+           tuple((np.shape(x), np.result_type(x).str) for x in leaves), params.max_steps_in_episode)
+    program = _PROGRAMS.get(key)
+    if program is not None:
+        return program
+    with jax.enable_x64(True):
+        _, unravel = ravel_pytree(params)
+    system = t.system
+    offsets = np.cumsum([0] + list(widths.values()))
+    where = {name: slice(int(offsets[i]), int(offsets[i + 1])) for i, name in enumerate(widths)}
+
+    def unpack(row: jax.Array) -> EnvState:
+        return EnvState(s=row[where["state"]], p=row[where["params_true"]], p_nominal=row[where["params_nominal"]],
+                        obs=row[where["obs"]], time=row[where["steps"]][0].astype(jnp.int32))
+
+    def reset_row(key: jax.Array, p: EnvParams) -> tuple[jax.Array, jax.Array]:
+        key, k_reset = jax.random.split(key)
+        obs, st = env.initial(k_reset, p)
+        phi = system.phi(st.s, st.p)
+        abs_phi_sf = jnp.mean(jnp.abs(env._scale_free(st.s, phi, p)))
+        zero_m = jnp.zeros_like(phi)
+        row = jnp.concatenate([st.s, st.p, st.p_nominal, obs, jnp.zeros(3), phi, jnp.mean(jnp.abs(phi))[None],
+                               abs_phi_sf[None], zero_m, st.s])
+        return row, key
+
+    def step_row(key: jax.Array, row: jax.Array, action: jax.Array, p: EnvParams) -> tuple[jax.Array, jax.Array]:
+        key, k_step = jax.random.split(key)
+        new, out = env.transition(k_step, unpack(row), action, p)
+        row = jnp.concatenate([new.s, new.p, new.p_nominal, new.obs, new.time.astype(row.dtype)[None],
+                               out.reward[None], out.status.astype(row.dtype)[None], out.phi, out.abs_phi[None],
+                               out.abs_phi_sf[None], out.force, out.s_reached])
+        return row, key
+
+    @jax.jit
+    def reset(mem: jax.Array, keys: jax.Array, mask: jax.Array, flat: jax.Array) -> tuple[jax.Array, jax.Array]:
+        p = unravel(flat)
+        rows, new_keys = jax.vmap(reset_row, in_axes=(0, None))(keys, p)
+        return jnp.where(mask[:, None], rows, mem), jnp.where(mask[:, None], new_keys, keys)
+
+    @jax.jit
+    def step(mem: jax.Array, keys: jax.Array, actions: jax.Array, mask: jax.Array, flat: jax.Array
+             ) -> tuple[jax.Array, jax.Array]:
+        p = unravel(flat)
+        rows, new_keys = jax.vmap(step_row, in_axes=(0, 0, 0, None))(keys, mem, actions, p)
+        return jnp.where(mask[:, None], rows, mem), jnp.where(mask[:, None], new_keys, keys)
+
+    program = _PROGRAMS[key] = _Program(reset=reset, step=step, unravel=unravel)
+    return program
 
 
-def entry_point(dispatcher: Any, *args: Any) -> Any:
-    """The compiled entry point of a numba ``dispatcher`` for the types of ``args`` (compiling it if
-    needed).
-
-    Why: a call through the dispatcher finds the argument types first, which costs about 0.1 us
-    per array of a named bundle (2-3 us a step for [`Buffers`][vnhc_gym.envs.episode.Buffers], more
-    than the physics of a single environment).  A batch's bundles keep their types for its whole
-    life, so it resolves the entry point once and calls it directly.  Only call the result with
-    arguments of the same types.
-    """
-    types = tuple(dispatcher.typeof_pyval(a) for a in args)
-    if types not in dispatcher.overloads:
-        dispatcher.compile(types)
-    return dispatcher.overloads[types].entry_point
+def _identity(fn: Any) -> Any:
+    """What a task function's code is: the function, or a ``partial``'s function and keywords (a new
+    ``partial`` of the same function and system is the same code)."""
+    if isinstance(fn, partial):
+        return (fn.func, fn.args, tuple(sorted(fn.keywords.items())))
+    return fn
 
 
 class Batch:
@@ -72,91 +157,60 @@ class Batch:
     Parameters
     ----------
     task : Task
-        The configured task; its ``model``, ``nominal``, ``args`` and step configuration are read once.
+        The configured task; its pure functions, declarations and configuration are read once.
     n : int
         Number of episodes (rows).
 
     Attributes
     ----------
     buf : Buffers
-        Every array, row ``r`` being episode ``r`` (read them; the kernels write them).
-    cfg : StepConfig
-        The step's scalars.
+        Every episode's arrays after the last call (the same arrays for the batch's life: its
+        fields are views of the batch's memory, and writing a state or a parameter there is what
+        the next step starts from).
+    env : FunctionalEnv
+        The task's environment as pure functions (with the feedback mode of `set_feedback`).
+    params : EnvParams
+        Its parameters.
+    dt : float
+        The control period (s).
+    seeded : ndarray of bool
+        Rows whose random stream was seeded.
     """
 
     def __init__(self, task: Task, n: int) -> None:
-        model = task.model
-        task.check_sizes()  # before any kernel writes the buffers sized from these declarations
+        task.check_sizes()
         self.task = task
         self.n = int(n)
-        self.buf = Buffers.allocate(self.n, model.n, model.m, len(model.param_names), len(model.output_names),
-                                    task.obs_dim)
-        self.buf.params_true[:] = task.nominal
-        self.buf.params_nominal[:] = task.nominal
-        self.cfg = step_config(task)
-        self.feedback = "open"
+        model = task.model
+        self._widths = {name: (size if isinstance(size, int) else
+                               {"n2": 2 * model.n, "P": len(model.param_names), "d": int(task.obs_dim),
+                                "m": model.m}[size]) for name, size in _FIELDS}
+        # Rows are padded to a multiple of _LANES: XLA vectorises the loop over rows and computes
+        # the rows left over past a multiple of the vector width with scalar code, whose results
+        # differ in the last bit for some functions (the boat's); padded, every episode's row is
+        # computed by the same code whatever the batch size, so a batch of any size gives each
+        # episode the same bits.  The padding rows are never stepped or shown.
+        rows = -(-self.n // _LANES) * _LANES
+        self.mem = np.zeros((rows, sum(self._widths.values())))
+        self.keys = np.zeros((rows, 2), dtype=np.uint32)
+        self.actions = np.zeros((rows, model.m))
         self.seeded = np.zeros(self.n, dtype=np.bool_)
+        self.dt = float(task.config.dt)
         self._reasons = np.array(task.all_reasons, dtype=object)
-        self._bind()
-
-    def _bind(self) -> None:
-        """Load the task's kernels and resolve their entry points for this batch's bundles."""
-        self.step_kernels = k = step_module(self.task)
-        rows = np.zeros(1, dtype=np.intp)
-        self._step = entry_point(k.step, rows, self.buf, self.cfg, self.task.args)
-        self._reset = entry_point(k.reset, rows, self.buf, self.cfg, self.task.args)
-        self._act = entry_point(accept_actions, rows, np.zeros((1, self.task.act_dim)), self.cfg.bound, self.buf.force,
-                             self.buf.action)
-        self._act32: Any = None  # the float32 variant, resolved on the first float32 actions
-        self._step_feedback: Any = None  # the step with the law in the loop, resolved on first use
+        self.feedback = "open"
+        self.set_feedback("open")
+        self.buf = self._view()
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        for name in ("step_kernels", "_step", "_step_feedback", "_reset", "_act", "_act32"):
-            state[name] = None  # compiled code: loaded again from the cache
+        for name in ("env", "params", "_compiled", "buf"):
+            state[name] = None  # functions and modules: made (or found compiled) again after unpickling
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
-        self._bind()
-
-    # ------------------------------------------------------------------ episodes
-    def seed(self, rows: NDArray[np.intp], seeds: list[int | None]) -> None:
-        """Seed the streams of ``rows``: ``seeds[k]`` for ``rows[k]`` (an int >= 0), or ``None`` to keep
-        the row's stream (fresh operating-system entropy if it was never seeded)."""
-        given = np.array([s is not None for s in seeds], dtype=np.bool_)
-        if given.any():
-            self.buf.rng[rows[given]] = seed_states([s for s in seeds if s is not None])
-        fresh = rows[~given & ~self.seeded[rows]]
-        if fresh.size:
-            self.buf.rng[fresh] = entropy_states(fresh.size)
-        self.seeded[rows] = True
-
-    def reset(self, rows: NDArray[np.intp]) -> None:
-        """Start new episodes in ``rows`` (seed them first, or they draw from entropy)."""
-        if not self.seeded[rows].all():
-            self.seed(rows, [None] * rows.size)
-        self._reset(rows, self.buf, self.cfg, self.task.args)
-
-    def act(self, rows: NDArray[np.intp], actions: NDArray[np.floating]) -> int:
-        """Store the actions ``(len(rows), m)`` (C-contiguous float64 or float32) of ``rows`` as forces;
-        the index of the first non-finite row (nothing stored), or -1."""
-        if actions.dtype == np.float32 and actions.flags.c_contiguous:
-            if self._act32 is None:
-                self._act32 = entry_point(accept_actions, rows, actions, self.cfg.bound, self.buf.force,
-                                          self.buf.action)
-            return int(self._act32(rows, actions, self.cfg.bound, self.buf.force, self.buf.action))
-        a = np.ascontiguousarray(actions, dtype=np.float64)  # the entry point takes exactly this type
-        return int(self._act(rows, a, self.cfg.bound, self.buf.force, self.buf.action))
-
-    def step(self, rows: NDArray[np.intp]) -> None:
-        """Advance the episodes ``rows`` by one control period with their stored forces."""
-        if self.feedback == "open":
-            self._step(rows, self.buf, self.cfg, self.task.args)
-            return
-        if self._step_feedback is None:
-            self._step_feedback = entry_point(self.step_kernels.step_feedback, rows, self.buf, self.cfg, self.task.args)
-        self._step_feedback(rows, self.buf, self.cfg, self.task.args)
+        self.set_feedback(self.feedback, self._gains)
+        self.buf = self._view()  # views of this copy's memory
 
     def set_feedback(self, feedback: str = "open", gains: Any = 1.0) -> None:
         """Run the geometric law inside the integrator, on top of the held force.
@@ -165,8 +219,86 @@ class Batch:
         every RK4 stage, ``"sampled"`` once per control period; ``"open"`` (default) turns it off.
         The total force is clipped to the force bound at every stage.
         """
-        self.cfg = step_config(self.task, feedback, gains)
+        if feedback not in FEEDBACK:
+            raise ValueError(f"feedback must be one of {sorted(FEEDBACK)}, got {feedback!r}")
+        k = np.asarray(gains, dtype=np.float64)
+        if not (np.all(np.isfinite(k)) and np.all(k >= 0)):
+            raise ValueError(f"gains must be finite and >= 0, got {gains!r}")
+        self.env, self.params = self.task.functional(feedback=feedback, gains=k)
+        self._gains = k
+        with jax.enable_x64(True):
+            self._flat = np.asarray(ravel_pytree(self.params)[0], dtype=np.float64)
+        self._compiled = _program(self.env, self.params, self._widths)
         self.feedback = feedback
+
+    # ------------------------------------------------------------------ episodes
+    def seed(self, rows: NDArray[np.intp], seeds: list[int | None]) -> None:
+        """Seed the streams of ``rows``: ``seeds[k]`` for ``rows[k]`` (an int >= 0), or ``None`` to keep
+        the row's stream (fresh operating-system entropy if it was never seeded)."""
+        keys = np.array(self.keys)  # writable
+        given = np.array([s is not None for s in seeds], dtype=np.bool_)
+        if given.any():
+            keys[rows[given]] = seed_keys([s for s in seeds if s is not None])
+        fresh = rows[~given & ~self.seeded[rows]]
+        if fresh.size:
+            keys[fresh] = np.random.SeedSequence().generate_state(2 * fresh.size).reshape(-1, 2)
+        self.keys = keys
+        self.seeded[rows] = True
+
+    def reset(self, rows: NDArray[np.intp]) -> None:
+        """Start new episodes in ``rows`` (seed them first, or they draw from entropy)."""
+        if not self.seeded[rows].all():
+            self.seed(rows, [None] * rows.size)
+        with jax.enable_x64(True):
+            mem, keys = self._compiled.reset(self.mem, self.keys, self._mask(rows), self._flat)
+        self._store(mem, keys)
+
+    def act(self, rows: NDArray[np.intp], actions: NDArray[np.floating]) -> int:
+        """Store the actions ``(len(rows), m)`` of ``rows`` (clipped to [-1, 1] by the step); the index
+        of the first non-finite row (nothing stored), or -1."""
+        bad = np.flatnonzero(~np.isfinite(actions).all(axis=1))
+        if bad.size:
+            return int(bad[0])
+        self.actions[rows] = actions
+        return -1
+
+    def step(self, rows: NDArray[np.intp]) -> None:
+        """Advance the episodes ``rows`` by one control period with their stored actions."""
+        with jax.enable_x64(True):
+            mem, keys = self._compiled.step(self.mem, self.keys, self.actions, self._mask(rows), self._flat)
+        self._store(mem, keys)
+
+    def _mask(self, rows: NDArray[np.intp]) -> NDArray[np.bool_]:
+        mask = np.zeros(self.mem.shape[0], dtype=np.bool_)
+        mask[rows] = True
+        return mask
+
+    def _store(self, mem: Any, keys: Any) -> None:
+        """Copy a call's results into the batch's arrays, in place (so `buf`'s views stay current)."""
+        np.copyto(self.mem, np.asarray(mem))
+        self.keys = np.array(keys)
+        buf = self.buf
+        np.copyto(buf.obs32, buf.obs)
+        np.copyto(buf.status, self._column("status")[:, 0], casting="unsafe")
+        np.copyto(buf.steps, self._column("steps")[:, 0], casting="unsafe")
+
+    def _column(self, name: str) -> NDArray[np.float64]:
+        start = 0
+        for field, width in self._widths.items():
+            if field == name:
+                return self.mem[:self.n, start:start + width]
+            start += width
+        raise KeyError(name)
+
+    def _view(self) -> Buffers:
+        """Views of the first ``n`` rows of the memory (and copies, updated by `_store`, of the
+        entries whose type differs: the float32 observation, the status and the step count)."""
+        c = self._column
+        return Buffers(state=c("state"), next_state=c("next_state"), params_true=c("params_true"),
+                       params_nominal=c("params_nominal"), force_applied=c("force_applied"), phi=c("phi"),
+                       obs=c("obs"), obs32=c("obs").astype(np.float32), reward=c("reward")[:, 0],
+                       abs_phi=c("abs_phi")[:, 0], abs_phi_sf=c("abs_phi_sf")[:, 0],
+                       status=c("status")[:, 0].astype(np.int64), steps=c("steps")[:, 0].astype(np.int64))
 
     # ------------------------------------------------------------------ infos
     def info(self, r: int, reset: bool = False) -> dict[str, Any]:
@@ -180,7 +312,7 @@ class Batch:
             "abs_phi_sf": float(buf.abs_phi_sf[r]),
             "state": (buf.next_state if status == STATUS_NONFINITE else buf.state)[r].copy(),
             "force": buf.force_applied[r].copy(),
-            "time": int(buf.steps[r]) * self.cfg.dt,
+            "time": int(buf.steps[r]) * self.dt,
         }
         if reset:
             info["params"] = buf.params_true[r].copy()
@@ -196,9 +328,9 @@ class Batch:
         mask = np.ones(n, dtype=np.bool_) if rows is None else rows
         status = buf.status
         nonfinite = status == STATUS_NONFINITE
-        state = np.where(nonfinite[:, None], buf.next_state, buf.state) if nonfinite.any() else buf.state.copy()
+        state = np.where(nonfinite[:, None], buf.next_state, buf.state)
         values = {"phi": buf.phi.copy(), "abs_phi": buf.abs_phi.copy(), "abs_phi_sf": buf.abs_phi_sf.copy(),
-                  "state": state, "force": buf.force_applied.copy(), "time": buf.steps * self.cfg.dt}
+                  "state": state, "force": buf.force_applied.copy(), "time": buf.steps * self.dt}
         infos: dict[str, Any] = {}
         for key, value in values.items():
             if rows is not None:

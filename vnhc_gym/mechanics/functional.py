@@ -22,6 +22,8 @@ __all__ = ["acceleration", "law", "rk4_step", "rk4_step_feedback", "sampled_law"
 
 Array = Any  # a jax.Array (or anything jax.numpy accepts)
 
+_MAX_UNROLL = 8  #: RK4 loops up to this many substeps are unrolled
+
 
 def acceleration(system: ModuleType, s: Array, p: Array, u: Array) -> Array:
     """``qdd = a0(s) + Y(s) u``: the system is affine in the control.
@@ -64,7 +66,9 @@ def rk4_step(system: ModuleType, s: Array, p: Array, u: Array, dt: float, subste
         k4 = vector_field(system, x + h * k3, p, u)
         return x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
-    return jax.lax.fori_loop(0, substeps, one, s, unroll=True)
+    # Unrolled where the loop is short (XLA fuses the stages); a long loop unrolled would make a
+    # program of that many RK4 steps (100 000 substeps took 24 GB to compile).
+    return jax.lax.fori_loop(0, substeps, one, s, unroll=substeps <= _MAX_UNROLL)
 
 
 def rk4_step_feedback(system: ModuleType, s: Array, p: Array, u: Array, dt: float, gains: Array,

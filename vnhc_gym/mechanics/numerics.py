@@ -1,11 +1,6 @@
-"""Numba helpers of the generated kernels: status flags, the transversality measure of the law's
-singular test, a small linear solve and inline sin/cos.
-
-Task authors may call [`psin`][vnhc_gym.mechanics.numerics.psin],
-[`pcos`][vnhc_gym.mechanics.numerics.pcos] and [`psincos`][vnhc_gym.mechanics.numerics.psincos] in
-their own kernels (they are re-exported by [`vnhc_gym.rng`][vnhc_gym.rng]): the generated system
-code uses them for every sine and cosine, so a task that computes the same quantity with them gets
-the same bits.
+"""Numba helpers of the generated system kernels (the baselines' model): status flags, the
+transversality measure of the law's singular test, a small linear solve and inline sin/cos (the
+generated code uses them for every sine and cosine).
 """
 
 from __future__ import annotations

@@ -2,53 +2,60 @@
 
 A task module (``vnhc_gym/tasks/sled.py`` is one) holds, in this order:
 
-1. its hooks' constants (a ``NamedTuple`` called ``Args``), its termination codes, and two compiled
-   per-row hooks: ``draw`` (the start state of a new episode, and any random parameters of the
-   task's own) and ``observe`` (the observation, and 0 or a termination code);
+1. its functions' constants (a ``NamedTuple`` called ``Args``) and its pure ``jax.numpy`` functions of
+   one episode: ``initial`` (the start state), ``observation``, and where the task has them
+   ``terminations`` (named predicates), ``task_params`` (random parameters of the task's own) and
+   ``scale_free`` (its own scale-free ``phi``);
 2. its options (a [`TaskOptions`][vnhc_gym.envs.config.TaskOptions] dataclass) and its
-   [`Task`][vnhc_gym.tasks.base.Task] subclass: the mechanical system and constraint, the hooks'
+   [`Task`][vnhc_gym.tasks.base.Task] subclass: the mechanical system and constraint, the functions'
    constants, the observation size, the force bounds, the termination reasons by name, and how a
    controller reads the state back from an observation;
 3. the environment class with its card (a subclass of [`ConstraintEnv`][vnhc_gym.envs.env.ConstraintEnv]);
    the registry makes its native vector version.
 
-One line in `vnhc_gym.tasks` registers it.  Everything else is common to every task and done
-by the generated step and reset kernels (`vnhc_gym.envs._step_template`): the nominal
-parameters and the mismatch draw, impulses, RK4, the non-finite check, the status, clipping of the
-observation, observation noise, the scale-free ``phi`` (``phi / phi_sf_scale`` unless the task
-writes its own) and the reward.
-
-The hooks' signatures::
-
-    @njit(cache=True)
-    def draw(rng, r, stage, state, params, aux, args) -> None: ...
-
-    @njit(cache=True, inline="always")
-    def observe(state, phi, aux, args, obs, phi_sf) -> int: ...
-
-``draw`` writes the row's start ``state`` with draws from ``rng`` (call ``uniform_ab(rng, r, lo, hi)``
-and the other draws of [`vnhc_gym.rng`][vnhc_gym.rng]); ``params`` holds the nominal parameters, which it may
-change where the task has random parameters of its own; ``aux`` holds the true model's extra
-outputs at the state drawn so far (for stages after the first).  ``observe`` writes ``obs`` from the
-``state``, ``phi`` (with the true parameters) and ``aux`` (with the nominal ones), may overwrite
-``phi_sf``, and returns 0 or one of the codes of `Task.reasons`.
+One line in `vnhc_gym.tasks` registers it.  Everything else is common to every task and done once,
+by [`FunctionalEnv`][vnhc_gym.envs.functional.FunctionalEnv]: the nominal parameters and the
+mismatch draw, impulses, RK4, the non-finite check, the status, observation noise and clipping, the
+scale-free ``phi`` (``phi / phi_sf_scale`` unless the task writes its own) and the reward.  The
+functions' signatures are in that module's docstring.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import inspect
+import sys
 from dataclasses import asdict
+from functools import partial
 from typing import Any, ClassVar, NamedTuple
 
+import jax
 import numpy as np
 from numpy.typing import NDArray
 
 from vnhc_gym.envs.config import EnvConfig, TaskOptions
 from vnhc_gym.mechanics import ConstrainedSystem
+from vnhc_gym.mechanics.lambdified import LambdifiedSystem
+from vnhc_gym.systems.printed import printed_for
 
 __all__ = ["Task"]
 
 Array = NDArray[np.float64]
+
+#: The compiled, batched observation of `Task.observation_of`, by task class and printed system.
+_OBSERVATIONS: dict[tuple[type, Any], Any] = {}
+#: Lambdified systems, by the model's key (one per system and process: the compiled programs key on it).
+_LAMBDIFIED: dict[str, LambdifiedSystem] = {}
+
+
+def _jax_system_of(model: ConstrainedSystem) -> Any:
+    """``model``'s printed module, else its law lambdified (once per system)."""
+    printed = printed_for(model)
+    if printed is not None:
+        return printed
+    system = _LAMBDIFIED.get(model._key)
+    if system is None:
+        system = _LAMBDIFIED[model._key] = LambdifiedSystem(model.symbolic, model._outputs)
+    return system
 
 
 class Task:
@@ -63,8 +70,8 @@ class Task:
         Registry name (``"usv"``).
     Options : type of TaskOptions
         The task's own keyword arguments, with defaults, meanings and checks.
-    reasons : mapping of str to int
-        Termination reasons by name, with the code (>= 1) the task's ``observe`` returns for each;
+    reasons : tuple of str
+        The names of the task's ``terminations``, in the order they are checked;
         ``"non_finite_state"`` is common to every task.  Reasons that are a bound on one state
         entry are better declared as ``limits``.
     default_force_bound : float or tuple of float
@@ -81,10 +88,10 @@ class Task:
     phi_sf_meaning : str
         What the scale-free ``phi~`` is, for tables and docs.
     phi_sf_scale : float
-        ``phi~ = phi / phi_sf_scale`` (in ``phi``'s units) unless ``observe`` writes its own.
+        ``phi~ = phi / phi_sf_scale`` (in ``phi``'s units) unless the module defines ``scale_free``.
     angles : tuple of int
-        The state's coordinates that are angles: an observer takes their differences modulo 2 pi,
-        and a run whose angle leaves the inline sine's range ends as non-finite.
+        The state's coordinates that are angles: an observer or a filter takes their differences
+        modulo 2 pi.
     uncertain : tuple of str
         Names of the parameters the ``mismatch`` scenario perturbs (an adaptive controller estimates
         them), in [`controller_model`][vnhc_gym.tasks.base.Task.controller_model]'s parameter names.
@@ -92,12 +99,6 @@ class Task:
         Parameters of [`controller_model`][vnhc_gym.tasks.base.Task.controller_model] that a
         controller reads from the observation and that change along an episode (a current's local
         model): a Kalman filter estimates them with the state.
-    draw_stages : int
-        Number of stages of ``draw`` (a stage after the first sees the model's outputs at the state
-        drawn so far).
-    mismatch_stage : int
-        The true parameters are drawn just before this stage of ``draw`` (0: before the task draws
-        anything; ``draw_stages``: after it is done).
 
     Notes
     -----
@@ -108,18 +109,18 @@ class Task:
     - ``model`` ([`ConstrainedSystem`][vnhc_gym.mechanics.ConstrainedSystem]): the compiled system
       with the constraint, the environment's dynamics.
     - ``nominal`` (ndarray): the nominal parameter vector of ``model`` (what a controller is told).
-    - ``args`` (NamedTuple): the constants the hooks read.
+    - ``args`` (NamedTuple): the constants the task's functions read.
     - ``obs_dim`` (int): the observation size.
     - ``impulse_mask`` (ndarray, shape ``(n,)``): weights of the velocity entries that impulses kick
       (0 = never).
     - ``limits`` (tuple of ``(str, int, float)``): ``(reason, index, bound)``: the episode ends with
-      ``reason`` when ``|state[index]| > bound`` (checked in order, after the code ``observe``
-      returns; default none).
+      ``reason`` when ``|state[index]| > bound`` (checked in order, after ``terminations``;
+      default none).
     """
 
     name: ClassVar[str]
     Options: ClassVar[type[TaskOptions]] = TaskOptions
-    reasons: ClassVar[Mapping[str, int]] = {}
+    reasons: ClassVar[tuple[str, ...]] = ()
     default_force_bound: ClassVar[float | tuple[float, ...]]
     force_units: ClassVar[str | tuple[str, ...]] = "N"
     default_impulse_scale: ClassVar[float]
@@ -130,8 +131,6 @@ class Task:
     angles: ClassVar[tuple[int, ...]] = ()
     uncertain: ClassVar[tuple[str, ...]] = ()
     filtered_params: ClassVar[tuple[str, ...]] = ()
-    draw_stages: ClassVar[int] = 1
-    mismatch_stage: ClassVar[int] = 0
 
     config: EnvConfig
     options: TaskOptions
@@ -166,52 +165,26 @@ class Task:
         return (u,) * self.act_dim if isinstance(u, str) else tuple(u)
 
     @property
-    def reason_codes(self) -> dict[str, int]:
-        """Every termination reason's code: the declared ``reasons``, then the reasons that only
-        ``limits`` name, numbered on."""
-        codes = dict(self.reasons)
-        for reason, _, _ in self.limits:
-            if reason not in codes:
-                codes[reason] = max(codes.values(), default=0) + 1
-        return codes
-
-    @property
     def all_reasons(self) -> tuple[str | None, ...]:
-        """``termination_reason`` by status (None for "no termination"); code ``c`` is status ``1 + c``."""
-        codes = self.reason_codes
-        out: list[str | None] = [None, "non_finite_state"] + [None] * (max(codes.values(), default=0))
-        for reason, code in codes.items():
-            out[1 + code] = reason
-        return tuple(out)
+        """``termination_reason`` by status: None (no termination), ``"non_finite_state"``, the
+        declared ``reasons``, then the reasons that only ``limits`` name."""
+        names: list[str | None] = [None, "non_finite_state", *self.reasons]
+        names += list(dict.fromkeys(r for r, _, _ in self.limits if r not in names))
+        return tuple(names)
 
     @classmethod
     def check_definition(cls) -> None:
-        """``ValueError`` if the class's declarations are inconsistent (codes, stages)."""
-        codes = list(dict(cls.reasons).values())
-        if any(not isinstance(c, int) or isinstance(c, bool) or c < 1 for c in codes) or len(set(codes)) != len(codes):
-            raise ValueError(f"{cls.__name__}.reasons must map names to distinct integer codes >= 1, "
-                             f"got {cls.reasons!r}")
-        if "non_finite_state" in cls.reasons:
+        """``ValueError`` if the class's declared reasons are not distinct names."""
+        reasons = cls.reasons
+        if (not isinstance(reasons, tuple) or not all(isinstance(r, str) and r for r in reasons)
+                or len(set(reasons)) != len(reasons)):
+            raise ValueError(f"{cls.__name__}.reasons must be a tuple of distinct names, got {reasons!r}")
+        if "non_finite_state" in reasons:
             raise ValueError(f"{cls.__name__}.reasons: 'non_finite_state' is common to every task")
-        if not (isinstance(cls.draw_stages, int) and cls.draw_stages >= 1
-                and isinstance(cls.mismatch_stage, int) and 0 <= cls.mismatch_stage <= cls.draw_stages):
-            raise ValueError(f"{cls.__name__}: need draw_stages >= 1 and 0 <= mismatch_stage <= draw_stages, got "
-                             f"{cls.draw_stages!r} and {cls.mismatch_stage!r}")
 
     def check_sizes(self) -> None:
-        """``ValueError`` naming the task and the size if a size the task declares disagrees with what
-        its constructor set or its hooks write.
-
-        Why: the compiled kernels index fixed-size buffers without bounds checks, so a hook that
-        writes past its row (an ``observe`` that writes 9 entries where ``obs_dim`` says 7) would
-        corrupt memory instead of raising.  Each hook runs here once, on buffers padded with a marker,
-        before any kernel does: a write past the declared size changes the padding, an entry the
-        hook never writes keeps the marker.
-        """
-        import sys
-
-        from vnhc_gym.rng import seed_states
-
+        """``ValueError`` naming the task and the function if a size the task declares disagrees with
+        what its constructor set or its functions return (traced with ``jax.eval_shape``: nothing runs)."""
         model = self.model
         where = f"task {self.name!r} ({type(self).__module__})"
         n_state, m, n_params = 2 * model.n, model.m, len(model.param_names)
@@ -227,37 +200,30 @@ class Task:
             bad = [i for i in indices if not (isinstance(i, (int, np.integer)) and 0 <= i < n_state)]
             if bad:
                 raise ValueError(f"{where}: {label} index {bad} outside the state's {n_state} entries")
-        hooks = sys.modules[type(self).__module__]
-        # The hooks' Python functions (numba keeps them as ``py_func``) on buffers of exactly the
-        # declared sizes: numpy raises IndexError where the compiled code would write out of bounds.
-        draw = getattr(hooks.draw, "py_func", hooks.draw)
-        observe = getattr(hooks.observe, "py_func", hooks.observe)
-        mark = -7.25e300  # a value no hook writes: an observation entry still holding it was never written
-        state = np.zeros(n_state)
-        params = np.array(self.nominal, dtype=np.float64)
-        n_aux = len(model.output_names)
-        aux = np.zeros(max(n_aux, 1))
-        rng = seed_states([0])
-        try:
-            for stage in range(self.draw_stages):
-                if stage > 0 and n_aux:
-                    aux[:n_aux] = model.outputs(state, params)
-                draw(rng, 0, stage, state, params, aux, self.args)
-        except IndexError as exc:
-            raise ValueError(f"{where}: draw indexes past a buffer (state has {n_state} entries, params "
-                             f"{n_params}, aux {aux.size}): {exc}") from None
-        obs = np.full(self.obs_dim, mark)
-        phi_sf = np.zeros(m)
-        if n_aux:
-            aux[:n_aux] = model.outputs(state, params)
-        try:
-            observe(state, model.phi(state, params), aux, self.args, obs, phi_sf)
-        except IndexError as exc:
-            raise ValueError(f"{where}: observe writes past the observation's obs_dim = {self.obs_dim} entries "
-                             f"(or past phi_sf's {m}, one per constraint component): {exc}") from None
-        if (obs == mark).any():
-            raise ValueError(f"{where}: observe leaves observation entries {np.flatnonzero(obs == mark).tolist()} "
-                             f"unwritten, but obs_dim is {self.obs_dim}")
+        env, params = self.functional()
+        fns = env.task
+        key = jax.ShapeDtypeStruct((2,), np.uint32)
+        s = jax.ShapeDtypeStruct((n_state,), np.float32)
+        p = jax.ShapeDtypeStruct((n_params,), np.float32)
+        phi = jax.ShapeDtypeStruct((m,), np.float32)
+        args = params.args
+        checks = [("initial", fns.initial, (key, p, args), (n_state,), "the state's 2n entries"),
+                  ("observation", fns.observation, (s, phi, p, args), (self.obs_dim,), "obs_dim")]
+        if fns.task_params is not None:
+            checks.append(("task_params", fns.task_params, (key, p, args), (n_params,), "the system's parameters"))
+        if fns.scale_free is not None:
+            checks.append(("scale_free", fns.scale_free, (s, phi, args), (m,), "one per control"))
+        for name, fn, inputs, shape, what in checks:
+            got = jax.eval_shape(fn, *inputs).shape
+            if tuple(got) != shape:
+                raise ValueError(f"{where}: {name} returns shape {tuple(got)}, but {what} makes it {shape}")
+        if fns.terminations is not None:
+            names = tuple(jax.eval_shape(fns.terminations, s, phi, args))
+            if names != self.reasons:
+                raise ValueError(f"{where}: terminations returns the reasons {names}, but the task declares "
+                                 f"reasons = {self.reasons}")
+        elif self.reasons:
+            raise ValueError(f"{where}: reasons {self.reasons} are declared, but the module defines no terminations")
 
     # ------------------------------------------------------------------ the pure-function environment
     def functional(self, feedback: str = "open", gains: Any = 1.0, max_steps: int = 400) -> Any:
@@ -276,12 +242,6 @@ class Task:
         max_steps : int
             The time limit of `FunctionalEnv.step`'s automatic reset (the registry's 400).
         """
-        import inspect
-        import sys
-        from functools import partial
-
-        import jax.numpy as jnp
-
         from vnhc_gym.envs.functional import EnvParams, FunctionalEnv, TaskFunctions
 
         module = sys.modules[type(self).__module__]
@@ -308,7 +268,10 @@ class Task:
             limits=tuple((r, int(i)) for r, i, _ in self.limits),
             impulse_mask=tuple(float(w) for w in self.impulse_mask),
             uncertain=tuple(n in self.uncertain for n in names), obs_dim=int(self.obs_dim))
-        f = jnp.asarray
+
+        def f(x: Any) -> Any:
+            return np.asarray(x, dtype=np.float64)  # float64: JAX casts it to its own precision at a call
+
         params = EnvParams(
             nominal=f(self.nominal), force_bound=f(self.force_bound), dt=f(c.dt), param_mismatch=f(c.param_mismatch),
             obs_noise=f(c.obs_noise), obs_clip=f(c.obs_clip), impulse_prob=f(c.impulse_prob),
@@ -322,13 +285,10 @@ class Task:
         return env, params
 
     def jax_system(self) -> Any:
-        """The printed JAX module of the environment's system (`vnhc_gym.systems.printed`)."""
-        from vnhc_gym.systems.printed import printed_for
-
-        system = printed_for(self.model)
-        if system is None:
-            raise ValueError(f"task {self.name!r}: no printed system for {getattr(self.model, 'recipe', None)!r}")
-        return system
+        """The environment's system as pure JAX functions: its printed module
+        (`vnhc_gym.systems.printed`), or for a system the package does not ship (a user's), its law
+        lambdified on first use ([`LambdifiedSystem`][vnhc_gym.mechanics.lambdified.LambdifiedSystem])."""
+        return _jax_system_of(self.model)
 
     # ------------------------------------------------------------------ what a controller reads
     def controller_model(self) -> ConstrainedSystem:
@@ -352,20 +312,21 @@ class Task:
         It inverts [`controller_inputs`][vnhc_gym.tasks.base.Task.controller_inputs] where that reads
         the state back from the observation; the observation's clipping is left out.
         """
-        import sys
-
-        hooks = sys.modules[type(self).__module__]
-        observe = getattr(hooks.observe, "py_func", hooks.observe)  # the hook's own Python function
         model = self.controller_model()
-        s = np.asarray(states, dtype=np.float64)
-        p = np.asarray(params, dtype=np.float64)
-        phi = model.phi(s, p)
-        aux = model.outputs(s, p) if model.output_names else np.zeros((s.shape[0], 1))
-        out = np.empty((s.shape[0], self.obs_dim))
-        sf = np.empty(self.act_dim)
-        for i in range(s.shape[0]):
-            observe(s[i], phi[i], aux[i], self.args, out[i], sf)
-        return out
+        system = self.jax_system() if model is self.model else _jax_system_of(model)
+        fn = _OBSERVATIONS.get((type(self), system))
+        if fn is None:
+            observation = sys.modules[type(self).__module__].observation
+            if "system" in inspect.signature(observation).parameters:
+                observation = partial(observation, system=system)
+
+            def one(s: Any, p: Any, args: Any) -> Any:
+                return observation(s, system.phi(s, p), p, args)
+
+            fn = _OBSERVATIONS[(type(self), system)] = jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
+        with jax.enable_x64(True):
+            out = fn(np.asarray(states, dtype=np.float64), np.asarray(params, dtype=np.float64), self.args)
+        return np.array(out, dtype=np.float64)  # a writable copy
 
     def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
         """Controller states and parameters predicted one step ahead, expressed in the frame of the

@@ -9,13 +9,11 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 from vnhc_gym.envs.config import EnvConfig, TaskOptions, option
 from vnhc_gym.envs.env import ConstraintEnv
 from vnhc_gym.envs.rendering import Body, Link, Scene
-from vnhc_gym.rng import psincos, sign, uniform_ab
 from vnhc_gym.systems.cartpole import make_cartpole
 from vnhc_gym.tasks.base import Task
 
@@ -28,33 +26,6 @@ OBS_VEL_SCALE = 2.0  #: m/s and rad/s: the cart's speed, the pole's rate and phi
 
 class Args(NamedTuple):
     """The cart-pole hooks need no constants of their own (the terminations are the task's ``limits``)."""
-
-
-@njit(cache=True)
-def draw(rng: np.ndarray, r: int, stage: int, state: np.ndarray, params: np.ndarray, aux: np.ndarray,
-         args: Args) -> None:
-    """The cart near the middle of the track, the pole leaning up to 0.3 rad, both moving, with
-    ``|phi| >= 0.2`` rad/s (off the constraint by construction)."""
-    state[0] = uniform_ab(rng, r, -1.0, 1.0)
-    state[1] = uniform_ab(rng, r, -0.3, 0.3)
-    state[2] = uniform_ab(rng, r, -0.5, 0.5)
-    lam, mu, nu = params[5], params[6], params[7]
-    s, _ = psincos(state[1])
-    state[3] = -(lam * s + mu * state[2] + nu * state[0]) + uniform_ab(rng, r, 0.2, 1.0) * sign(rng, r)
-
-
-@njit(cache=True, inline="always")
-def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs: np.ndarray,
-            phi_sf: np.ndarray) -> int:
-    """Cart position and speed, the pole's angle as (cos, sin), its rate and ``phi``."""
-    s, c = psincos(state[1])
-    obs[0] = state[0] / OBS_POS_SCALE
-    obs[1] = state[2] / OBS_VEL_SCALE
-    obs[2] = c
-    obs[3] = s
-    obs[4] = state[3] / OBS_VEL_SCALE
-    obs[5] = phi[0] / OBS_VEL_SCALE
-    return 0
 
 
 def initial(key: jax.Array, p: jax.Array, args: Args) -> jax.Array:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import cache
 from typing import Any, NamedTuple
@@ -10,13 +9,11 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 from vnhc_gym.envs.config import EnvConfig, TaskOptions, check_number, option
 from vnhc_gym.envs.env import ConstraintEnv
 from vnhc_gym.envs.rendering import Scene, flock_scene
-from vnhc_gym.rng import sign, uniform_ab
 from vnhc_gym.systems.flocking import FLOCKING_PRESETS, MAX_AGENTS, make_flocking
 from vnhc_gym.tasks.base import Task
 
@@ -42,65 +39,6 @@ class Args(NamedTuple):
     n_agents: int
     preset_state: np.ndarray  #: the preset's start state (unused without a preset)
     use_preset: bool
-
-
-@njit(cache=True)
-def draw(rng: np.ndarray, r: int, stage: int, state: np.ndarray, params: np.ndarray, aux: np.ndarray,
-         args: Args) -> None:
-    """A new episode (state layout ``(x_1..x_N, z_1..z_N, xd_1..xd_N, zd_1..zd_N)``, leader last),
-    drawn from row ``r``'s stream in a fixed order."""
-    n = args.n_agents
-    if args.use_preset:
-        for j in range(4 * n):
-            state[j] = args.preset_state[j]
-        return
-    # Leader: xd_N - zd_N in [1, 3] keeps C = diag((xd_N - zd_N)/m) away from singular for the whole
-    # episode (zd_N only decreases in free fall).
-    lx = uniform_ab(rng, r, 0.5, 2.0) * sign(rng, r)
-    lz = lx - uniform_ab(rng, r, 1.0, 3.0)
-    speed = math.hypot(lx, lz)
-    angle = math.atan2(lz, lx)
-    state[n - 1] = 0.0
-    state[2 * n - 1] = 100.0
-    state[3 * n - 1] = lx
-    state[4 * n - 1] = lz
-    for b in range(n - 1):
-        # Followers: off the manifold by construction (angle offset 0.3..1.2 rad either way).
-        off = uniform_ab(rng, r, 0.3, 1.2) * sign(rng, r)
-        mag = speed * uniform_ab(rng, r, 0.5, 2.0)
-        state[2 * n + b] = mag * math.cos(angle + off)
-        state[3 * n + b] = mag * math.sin(angle + off)
-        state[b] = uniform_ab(rng, r, -20.0, 20.0)
-        state[n + b] = 100.0 + uniform_ab(rng, r, -20.0, 20.0)
-
-
-@njit(cache=True, inline="always")
-def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs: np.ndarray,
-            phi_sf: np.ndarray) -> int:
-    """Velocities in units of the leader's speed, its direction and log speed, ``phi^b / |v_N|^2``;
-    the scale-free ``phi~^b = phi^b / (|v_N| phi_sf_scale)``: follower ``b``'s velocity across the
-    leader's direction of motion, over 1 m/s."""
-    n = args.n_agents
-    nf = n - 1
-    vx0 = 2 * n
-    vz0 = 3 * n
-    lx = state[vx0 + nf]
-    lz = state[vz0 + nf]
-    speed = max(math.sqrt(lx * lx + lz * lz), MIN_SPEED)
-    inv = 1.0 / speed
-    ex = lx * inv
-    ez = lz * inv
-    for b in range(nf):
-        rx = state[vx0 + b] * inv
-        rz = state[vz0 + b] * inv
-        obs[2 * b] = rx
-        obs[2 * b + 1] = rz
-        obs[2 * nf + 3 + b] = ex * rz - rx * ez  # phi_b / |v_N|^2
-        phi_sf[b] = phi_sf[b] / speed  # phi_sf starts as phi / phi_sf_scale
-    obs[2 * nf] = ex
-    obs[2 * nf + 1] = ez
-    obs[2 * nf + 2] = math.log(speed) / LOG_SPEED_SCALE
-    return 0
 
 
 def _n_agents(s: jax.Array) -> int:
@@ -238,7 +176,6 @@ class FlockingTask(Task):
     phi_units = "m^2/s^2"
     phi_sf_meaning = "phi^b / (|v_N| 1 m/s): the follower's velocity across the leader's direction of motion"
     phi_sf_scale = PHI_SF_SCALE
-    mismatch_stage = 1  # the start state is drawn before the true masses
 
     @property
     def uncertain(self) -> tuple[str, ...]:  # type: ignore[override]

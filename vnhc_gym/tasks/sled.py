@@ -9,13 +9,11 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 from vnhc_gym.envs.config import EnvConfig, TaskOptions, option
 from vnhc_gym.envs.env import ConstraintEnv
 from vnhc_gym.envs.rendering import Scene, hull_scene
-from vnhc_gym.rng import psincos, sign, uniform_ab
 from vnhc_gym.systems.sled import make_sled
 from vnhc_gym.tasks.base import Task
 
@@ -24,7 +22,6 @@ __all__ = ["SledCruiseEnv", "SledCruiseTask", "SledOptions"]
 
 OBS_VEL_SCALE = 2.0  #: m/s: velocities are divided by this in the observation
 OBS_RATE_SCALE = 2.0  #: rad/s: the turn rate is divided by this
-FAST = 1  #: termination code: faster than max_speed
 
 
 class Args(NamedTuple):
@@ -32,35 +29,6 @@ class Args(NamedTuple):
 
     v_ref: float  #: the cruise speed (m/s)
     max_speed: float
-
-
-@njit(cache=True)
-def draw(rng: np.ndarray, r: int, stage: int, state: np.ndarray, params: np.ndarray, aux: np.ndarray,
-         args: Args) -> None:
-    """Anywhere, any heading, off the constraint in both components (slipping, and faster or slower
-    than the cruise speed), turning."""
-    state[0] = uniform_ab(rng, r, -5.0, 5.0)
-    state[1] = uniform_ab(rng, r, -5.0, 5.0)
-    state[2] = uniform_ab(rng, r, -math.pi, math.pi)
-    forward = args.v_ref + uniform_ab(rng, r, 0.2, 1.0) * sign(rng, r)
-    side = uniform_ab(rng, r, 0.1, 0.5) * sign(rng, r)
-    s, c = psincos(state[2])
-    state[3] = forward * c - side * s
-    state[4] = forward * s + side * c
-    state[5] = uniform_ab(rng, r, -1.0, 1.0)
-
-
-@njit(cache=True, inline="always")
-def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs: np.ndarray,
-            phi_sf: np.ndarray) -> int:
-    """Velocities in the sled's frame (forward, sideways), the turn rate and ``phi``."""
-    s, c = psincos(state[2])
-    obs[0] = (c * state[3] + s * state[4]) / OBS_VEL_SCALE
-    obs[1] = (-s * state[3] + c * state[4]) / OBS_VEL_SCALE
-    obs[2] = state[5] / OBS_RATE_SCALE
-    obs[3] = phi[0] / OBS_VEL_SCALE
-    obs[4] = phi[1] / OBS_VEL_SCALE
-    return FAST if math.hypot(state[3], state[4]) > args.max_speed else 0
 
 
 def initial(key: jax.Array, p: jax.Array, args: Args) -> jax.Array:
@@ -106,7 +74,7 @@ class SledCruiseTask(Task):
 
     name = "sled"
     Options = SledOptions
-    reasons = {"speed_exceeded": FAST}
+    reasons = ("speed_exceeded",)
     #: Thrust (N) and torque (N m) of action 1: the law with k = 5 needs at most 111 N and 31 N m at
     #: the start of a nominal episode (500 seeds).
     default_force_bound = (120.0, 40.0)

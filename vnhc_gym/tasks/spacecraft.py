@@ -9,13 +9,11 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 from vnhc_gym.envs.config import EnvConfig, TaskOptions, option
 from vnhc_gym.envs.env import ConstraintEnv
 from vnhc_gym.envs.rendering import Link, Scene, axes_3d
-from vnhc_gym.rng import psincos, sign, uniform_ab
 from vnhc_gym.systems.spacecraft import make_spacecraft
 from vnhc_gym.tasks.base import Task
 
@@ -23,60 +21,12 @@ Array = NDArray[np.float64]
 __all__ = ["SpacecraftOptions", "SpacecraftPointEnv", "SpacecraftTask"]
 
 OBS_RATE_SCALE = 2.0  #: rad/s: body rates and phi are divided by this in the observation
-RATE_EXCEEDED = 1  #: termination code: the body rate |omega| exceeded max_rate
 
 
 class Args(NamedTuple):
     """The spacecraft hooks' constants."""
 
     max_rate: float
-
-
-@njit(cache=True, inline="always")
-def _body_rate(state: np.ndarray) -> tuple[float, float, float]:
-    """``omega = E(q) qd`` for ZYX angles ``q = (psi, theta, varphi)``."""
-    st, ct = psincos(state[1])
-    sp, cp = psincos(state[2])
-    return (-st * state[3] + state[5], ct * sp * state[3] + cp * state[4], ct * cp * state[3] - sp * state[4])
-
-
-@njit(cache=True)
-def draw(rng: np.ndarray, r: int, stage: int, state: np.ndarray, params: np.ndarray, aux: np.ndarray,
-         args: Args) -> None:
-    """Any yaw, pitch and roll within 45 degrees (a tilt of axis 3 up to 60 degrees), and a body
-    rate off the constraint by 0.2-1 rad/s in each component, either way."""
-    state[0] = uniform_ab(rng, r, -math.pi, math.pi)
-    state[1] = uniform_ab(rng, r, -0.25 * math.pi, 0.25 * math.pi)
-    state[2] = uniform_ab(rng, r, -0.25 * math.pi, 0.25 * math.pi)
-    st, ct = psincos(state[1])
-    sp, cp = psincos(state[2])
-    z1, z2 = -st, ct * sp
-    spin, lam = params[3], params[4]
-    w1 = -lam * z2 + uniform_ab(rng, r, 0.2, 1.0) * sign(rng, r)
-    w2 = lam * z1 + uniform_ab(rng, r, 0.2, 1.0) * sign(rng, r)
-    w3 = spin + uniform_ab(rng, r, 0.2, 1.0) * sign(rng, r)
-    # qd = E^-1 omega, in closed form (|theta| < pi/2 here).
-    state[3] = (sp * w2 + cp * w3) / ct
-    state[4] = cp * w2 - sp * w3
-    state[5] = w1 + st * state[3]
-
-
-@njit(cache=True, inline="always")
-def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs: np.ndarray,
-            phi_sf: np.ndarray) -> int:
-    """The vertical in body axes, the body rates and ``phi``."""
-    st, ct = psincos(state[1])
-    sp, cp = psincos(state[2])
-    w1, w2, w3 = _body_rate(state)
-    obs[0] = -st
-    obs[1] = ct * sp
-    obs[2] = ct * cp
-    obs[3] = w1 / OBS_RATE_SCALE
-    obs[4] = w2 / OBS_RATE_SCALE
-    obs[5] = w3 / OBS_RATE_SCALE
-    for b in range(3):
-        obs[6 + b] = phi[b] / OBS_RATE_SCALE
-    return RATE_EXCEEDED if math.sqrt(w1 * w1 + w2 * w2 + w3 * w3) > args.max_rate else 0
 
 
 def _rates(s: jax.Array) -> jax.Array:
@@ -143,7 +93,7 @@ class SpacecraftTask(Task):
 
     name = "spacecraft"
     Options = SpacecraftOptions
-    reasons = {"rate_exceeded": RATE_EXCEEDED}
+    reasons = ("rate_exceeded",)
     #: Body torques (N m) of action 1: the law with k = 5 needs at most (7.6, 11.8, 10.5) N m at
     #: the start of a nominal episode (500 seeds).
     default_force_bound = (10.0, 15.0, 15.0)

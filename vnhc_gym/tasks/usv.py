@@ -10,14 +10,12 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 from vnhc_gym.envs.config import EnvConfig, TaskOptions, check_number, option
 from vnhc_gym.envs.env import ConstraintEnv
 from vnhc_gym.envs.rendering import Scene, hull_scene
 from vnhc_gym.mechanics import ConstrainedSystem
-from vnhc_gym.rng import normal_pair, psincos, sign, uniform_ab
 from vnhc_gym.systems.currents import CURRENTS, RANDOM_PARAM_NAMES, RANDOM_WEIGHTS, get_current
 from vnhc_gym.systems.usv import USV_PRESETS, make_usv
 from vnhc_gym.tasks.base import Task
@@ -38,70 +36,6 @@ class Args(NamedTuple):
     preset_state: np.ndarray  #: the preset's start state (unused without a preset)
     use_preset: bool
     domain: float  #: half-width of the charted square (m)
-
-
-@njit(cache=True, inline="always")
-def _velocity(rng: np.ndarray, r: int, state: np.ndarray, aux: np.ndarray) -> None:
-    """The start velocity at the drawn pose, from the true current ``aux`` there."""
-    s, c = psincos(state[2])
-    c1 = aux[0]
-    c2 = aux[1]
-    # Forward through the water, and at least 0.3 m/s forward over ground along the heading:
-    # on the manifold I thetadd = -m thetad v_forward, unstable when the boat goes backwards.
-    forward = max(uniform_ab(rng, r, 0.5, 1.5), 0.3 - (c1 * c + c2 * s))
-    phi0 = uniform_ab(rng, r, 0.2, 1.0) * sign(rng, r)  # off the manifold by construction
-    # Velocity = current + forward speed along the heading + phi0 across it (mu = (sin, -cos)).
-    state[3] = c1 + forward * c + phi0 * s
-    state[4] = c2 + forward * s - phi0 * c
-    state[5] = uniform_ab(rng, r, -0.5, 0.5)
-
-
-@njit(cache=True)
-def draw(rng: np.ndarray, r: int, stage: int, state: np.ndarray, params: np.ndarray, aux: np.ndarray,
-         args: Args) -> None:
-    """Stage 0: the random current's amplitudes (the true parameters are drawn from them); stage 1:
-    the pose, at rest; stage 2: the velocity, from the true current ``aux`` at that pose."""
-    if stage == 0:
-        for k in range(0, args.amp_idx.shape[0], 2):
-            z0, z1 = normal_pair(rng, r)
-            params[args.amp_idx[k]] = args.amp_w[k] * z0
-            if k + 1 < args.amp_idx.shape[0]:
-                params[args.amp_idx[k + 1]] = args.amp_w[k + 1] * z1
-    elif args.use_preset:
-        for j in range(6):
-            state[j] = args.preset_state[j]
-    elif stage == 1:
-        state[0] = uniform_ab(rng, r, -5.0, 5.0)
-        state[1] = uniform_ab(rng, r, -5.0, 5.0)
-        state[2] = uniform_ab(rng, r, -math.pi, math.pi)
-        state[3:] = 0.0
-    else:
-        _velocity(rng, r, state, aux)
-
-
-@njit(cache=True, inline="always")
-def observe(state: np.ndarray, phi: np.ndarray, aux: np.ndarray, args: Args, obs: np.ndarray,
-            phi_sf: np.ndarray) -> int:
-    """The observation, with the nominal current map at the boat from ``aux`` (the terminations
-    are the task's ``limits``)."""
-    s, c = psincos(state[2])
-    xd = state[3]
-    yd = state[4]
-    c1 = aux[0]
-    c2 = aux[1]
-    obs[0] = c
-    obs[1] = s
-    obs[2] = xd / OBS_VEL_SCALE
-    obs[3] = yd / OBS_VEL_SCALE
-    obs[4] = state[5] / OBS_RATE_SCALE
-    obs[5] = c1 / OBS_VEL_SCALE
-    obs[6] = c2 / OBS_VEL_SCALE
-    obs[7] = state[0] / args.domain
-    obs[8] = state[1] / args.domain
-    obs[9] = (s * xd - c * yd + c * c2 - s * c1) / OBS_VEL_SCALE  # phi with the nominal current
-    for j in range(4):
-        obs[10 + j] = aux[2 + j]  # nominal dC1/dx, dC1/dy, dC2/dx, dC2/dy (1/s)
-    return 0
 
 
 def task_params(key: jax.Array, p: jax.Array, args: Args) -> jax.Array:
@@ -232,8 +166,6 @@ class USVTask(Task):
     angles = (2,)  # theta
     uncertain = ("m", "I", "current_scale")
     filtered_params = ("c_c1", "c_c2", "c_j11", "c_j12", "c_j21", "c_j22")  # the local current, read at the boat
-    draw_stages = 3
-    mismatch_stage = 1  # after the random current's amplitudes: the mismatch scales the drawn field
 
     def __init__(self, config: EnvConfig, options: USVOptions) -> None:
         super().__init__(config, options)
