@@ -14,8 +14,7 @@ each figure is the user's job: env steps over the training wall time (SB3's star
 compiled program's compilation included; the validations excluded, as they are for both).  On a
 GPU the same command prints the GPU's figures for the compiled backend.
 
-The environment kernels run on one thread (numba, no thread pool), so only torch's threads can
-compete for the cores; at 256 environments the run compares one torch thread with two.  The
+At 256 environments the run compares one torch thread with two.  The
 concurrent case is the user's whole job: ``vnhc-gym train`` processes (start-up, training,
 validation and test included), one alone and two started together, with one torch thread each
 (the default) and with two (the oversubscribed case: four spinning threads on two cores).

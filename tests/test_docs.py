@@ -2,7 +2,7 @@
 
 The build needs the ``docs`` extra (MkDocs, Material, mkdocstrings); without it the build test is
 skipped.  The build reads the package with a static analyser (griffe), so it never imports
-vnhc_gym, numba or sympy, and takes a few seconds.  Docstrings cross-reference with autorefs'
+vnhc_gym, JAX or sympy, and takes a few seconds.  Docstrings cross-reference with autorefs'
 ``[`Name`][vnhc_gym.path]``, never with Sphinx roles, which the site would show raw: the sources
 are scanned without the build, the built pages with it.
 """

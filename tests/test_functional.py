@@ -84,7 +84,8 @@ def test_phi_decays_exponentially_under_the_continuous_law(name: str) -> None:
     s = jnp.asarray(np.random.default_rng(3).uniform(-0.5, 0.5, 2 * system.N))
     gains = jnp.linspace(1.5, 3.0, system.M)
     phi0 = system.phi(s, p)
-    step = jax.jit(lambda x: F.rk4_step_feedback(system, x, p, jnp.zeros(system.M), 0.01, gains, substeps=10))
+    step = jax.jit(lambda x: F.rk4_step_controlled(system, x, p, jnp.zeros(system.M), 0.01, 10, feedback="continuous",
+                                                         gains=gains)[0])
     for _ in range(50):  # 0.5 s
         s = step(s)
     np.testing.assert_allclose(system.phi(s, p), np.exp(-np.asarray(gains) * 0.5) * np.asarray(phi0), rtol=1e-7,

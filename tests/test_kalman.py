@@ -87,9 +87,15 @@ def test_without_noise_the_filter_is_the_plain_law(env_id: str) -> None:
         obs, *_ = env.step(a)
 
 
-def test_a_task_without_a_printed_model_is_refused_by_name() -> None:
-    with pytest.raises(ValueError, match="flocking6"):  # the flock is printed for 4 agents only
-        KalmanController(gym.make("vnhc_gym/FlockingAlign-v1", n_agents=6))
+def test_a_flock_of_any_size_is_filtered() -> None:
+    """The flock's model is a fleet of its printed unit for any size, so the filter runs on 6 agents."""
+    env = gym.make("vnhc_gym/FlockingAlign-v1", n_agents=6)
+    controller = KalmanController(env)
+    obs, _ = env.reset(seed=0)
+    for _ in range(3):
+        action, _ = controller.predict(obs)
+        assert action.shape == env.action_space.shape and np.all(np.isfinite(action))
+        obs, *_ = env.step(action)
 
 
 @pytest.mark.parametrize("name", sorted(vnhc_gym.tasks.shipped_tasks()))

@@ -150,19 +150,26 @@ def _rk4_input_polynomial(z: np.ndarray) -> np.ndarray:
 
 def _oscillator_rk4(mode: str, s: np.ndarray, k_true: float, k_told: float, gain: float, dt: float, substeps: int,
                     u_held: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    import jax
+
+    from vnhc_gym.mechanics import functional as F
+
     model = oscillator()
-    out, u_out, flags = np.empty_like(s), np.empty((len(s), 1)), np.empty(len(s), np.int64)
-    b = len(s)
-    model.compiled.rk4(s, np.full((b, 1), k_true), np.full((b, 1), k_told), np.full((b, 1), u_held),
-                      np.full((b, 1), gain), FEEDBACK_MODES[mode], np.full(1, -np.inf), np.full(1, np.inf), dt,
-                      substeps, 1e-10, out, u_out, flags)
-    return out, u_out[:, 0], flags
+
+    def one(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return F.rk4_step_controlled(model.functions, x, np.array([k_true]), np.array([u_held]), dt, substeps,
+                                     feedback=mode, p_law=np.array([k_told]), gains=np.array([gain]),
+                                     singular_tol=1e-10)
+
+    with jax.enable_x64(True):
+        out, u_out, singular = jax.vmap(one)(s)
+        return np.asarray(out), np.asarray(u_out)[:, 0], np.asarray(singular)
 
 
 def test_continuous_feedback_step_is_rk4_of_the_linear_closed_loop() -> None:
     """The oscillator's law is linear, u* = -K xd + k_told x (with the told model), so the closed loop
     y' = A y, A = [[0, 1], [k_told - k_true, -K]], is linear and an RK4 step is exactly R(h A).
-    The dynamics use the true k (P) and the law the told one (PL)."""
+    The dynamics use the true k (p) and the law the told one (p_law)."""
     s = np.array([[0.7, -1.1], [-2.0, 0.4], [0.0, 1.0]])
     k_true, k_told, gain, dt, substeps = 4.0, 2.5, 1.7, 0.1, 2
     out, u_out, flags = _oscillator_rk4("continuous", s, k_true, k_told, gain, dt, substeps)

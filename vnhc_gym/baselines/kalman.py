@@ -42,7 +42,6 @@ from vnhc_gym.baselines.geometric import DEFAULT_GAIN
 from vnhc_gym.baselines.observer import ObserverController
 from vnhc_gym.envs.config import check_number
 from vnhc_gym.mechanics import functional as F
-from vnhc_gym.systems.printed import printed_for
 from vnhc_gym.tasks.base import Task
 
 __all__ = ["KalmanController", "correct", "predict", "process_noise"]
@@ -157,10 +156,7 @@ class KalmanController(ObserverController):
         self.variant = variant
         self.q = check_number("q", q, low=0.0, high=1e6)
         self.q_params = check_number("q_params", q_params, low=0.0, high=1e6)
-        self.system = printed_for(self.model)
-        if self.system is None:
-            raise ValueError(f"KalmanController needs the printed JAX model of {self.model.name!r} "
-                             f"(vnhc_gym.systems.printed); this task has none")
+        self.system = self.model.functions
         self.sigma = float(self.task.config.obs_noise)
         self.name = "kalman"
         names = list(self.model.param_names)
@@ -178,11 +174,6 @@ class KalmanController(ObserverController):
         self._cov: Array | None = None
         self._base: Array | None = None  # the parameters the filter does not estimate (B, n_params)
         self._predict = _batched_predict(self.system, float(self.dt), int(self.substeps), self._filtered)
-
-    @staticmethod
-    def applies(task: Any) -> bool:
-        """Whether the filter can run on ``task``: its controller model is printed."""
-        return printed_for(task.controller_model()) is not None
 
     def __repr__(self) -> str:
         return (f"KalmanController({self.task.name!r}, gain={self.gain.tolist()}, q={self.q}, "

@@ -45,7 +45,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
 from vnhc_gym.mechanics import functional as F
-from vnhc_gym.systems.printed import printed_for
 
 __all__ = ["MPCController", "plan_cost"]
 
@@ -130,19 +129,10 @@ class MPCController(GeometricController):
         self.bound = np.broadcast_to(np.asarray(self.force_bound, dtype=np.float64), (self.act_dim,)).copy()
         self.solve_seconds = 0.0
         self.n_solves = 0
-        system = printed_for(self.model)
-        if system is None:
-            raise ValueError(f"MPCController needs the printed JAX model of {self.model.name!r} "
-                             f"(vnhc_gym.systems.printed); this task has none")
-        self._value_and_grad = _cost_and_gradient(system, float(self.dt), int(self.substeps),
+        self._value_and_grad = _cost_and_gradient(self.model.functions, float(self.dt), int(self.substeps),
                                                   tuple(int(i) for i in self.limit_index))
         self._plans: Array | None = None  # each row's last plan (B, N, m), the next solve's start
         self._fresh: NDArray[np.bool_] | None = None  # rows whose next plan starts from the law
-
-    @staticmethod
-    def applies(task: Any) -> bool:
-        """Whether the planner can run on ``task``: its controller model is printed."""
-        return printed_for(task.controller_model()) is not None
 
     def reset_rows(self, rows: NDArray[np.bool_]) -> None:
         if self._fresh is not None and self._fresh.shape == rows.shape:

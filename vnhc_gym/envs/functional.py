@@ -351,31 +351,11 @@ class FunctionalEnv:
     def _advance(self, state: EnvState, force: Array, params: EnvParams) -> tuple[Array, Array]:
         """RK4 over ``dt`` with the action's force (and the law, in the feedback modes), the total
         clipped to the force bound; the applied force averaged over the substeps."""
-        system, bound = self.task.system, params.force_bound
-        s, p = state.s, state.p
-        if self.feedback == "open":
-            return core.rk4_step(system, s, p, force, params.dt, self.substeps), force
-        if self.feedback == "sampled":
-            total = jnp.clip(force + _safe_law(system, s, state.p_nominal, params.gains), -bound, bound)
-            return core.rk4_step(system, s, p, total, params.dt, self.substeps), total
-        h = params.dt / self.substeps
-
-        def control(x: Array) -> Array:
-            return jnp.clip(force + _safe_law(system, x, state.p_nominal, params.gains), -bound, bound)
-
-        def field(x: Array) -> Array:
-            return core.vector_field(system, x, p, control(x))
-
-        def one(_: int, carry: tuple[Array, Array]) -> tuple[Array, Array]:
-            x, acc = carry
-            k1 = field(x)
-            k2 = field(x + 0.5 * h * k1)
-            k3 = field(x + 0.5 * h * k2)
-            k4 = field(x + h * k3)
-            return x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4), acc + control(x)
-
-        x, acc = jax.lax.fori_loop(0, self.substeps, one, (s, jnp.zeros_like(force)))
-        return x, acc / self.substeps
+        bound = params.force_bound
+        x, applied, _ = core.rk4_step_controlled(
+            self.task.system, state.s, state.p, force, params.dt, self.substeps, feedback=self.feedback,
+            p_law=state.p_nominal, gains=params.gains, lower=-bound, upper=bound)
+        return x, applied
 
     def _scale_free(self, s: Array, phi: Array, params: EnvParams) -> Array:
         if self.task.scale_free is not None:
@@ -427,12 +407,6 @@ def _when(pred: Array, draw: Callable[[Array], Array], otherwise: Callable[[Arra
     threefry draws cost more than the physics of a step on a CPU).
     """
     return jax.lax.cond(pred, draw, otherwise, key)
-
-
-def _safe_law(system: ModuleType, s: Array, p: Array, gains: Array) -> Array:
-    """The stabilising law, 0 where it is not finite (a singular decoupling matrix)."""
-    u = core.law(system, s, p, gains)
-    return jnp.where(jnp.all(jnp.isfinite(u)), u, 0.0)
 
 
 def make_jax(env_id: str, scenario: str = "nominal", *, feedback: str = "open", gains: Any = 1.0,

@@ -1,9 +1,9 @@
 """The geometric core: mechanical control systems, virtual constraints, the stabilising law
-of Theorem 2 and RK4 integration.  Pure sympy/numpy/numba: nothing here imports Gymnasium.
+of Theorem 2 and RK4 integration.  Pure sympy/numpy/JAX: nothing here imports Gymnasium.
 
 The symbolic names ([`MechanicalSystem`][vnhc_gym.mechanics.MechanicalSystem], the constraints,
 [`derive_law`][vnhc_gym.mechanics.derive_law]) are loaded on first use (PEP 562), so that running a
-cached system never imports sympy.
+printed system never imports sympy.
 """
 
 from __future__ import annotations
@@ -13,8 +13,14 @@ from typing import TYPE_CHECKING, Any
 
 from vnhc_gym.mechanics.fleet import FleetLayout
 from vnhc_gym.mechanics.integrate import Trajectory, simulate
-from vnhc_gym.mechanics.model import FEEDBACK_MODES, ConstrainedSystem, Feedback, SingularControlError
-from vnhc_gym.mechanics.numerics import FLAG_NONFINITE, FLAG_SINGULAR
+from vnhc_gym.mechanics.model import (
+    FEEDBACK_MODES,
+    FLAG_NONFINITE,
+    FLAG_SINGULAR,
+    ConstrainedSystem,
+    Feedback,
+    SingularControlError,
+)
 from vnhc_gym.mechanics.sampled import sampled_control
 
 if TYPE_CHECKING:

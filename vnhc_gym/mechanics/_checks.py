@@ -1,6 +1,6 @@
 """Checks of numeric parameters and states shared by the symbolic and the compiled side.
 
-Plain numpy (no sympy, no numba): [`MechanicalSystem`][vnhc_gym.mechanics.system.MechanicalSystem] checks its
+Plain numpy (no sympy, no JAX): [`MechanicalSystem`][vnhc_gym.mechanics.system.MechanicalSystem] checks its
 default values with `check_param`, [`ConstrainedSystem`][vnhc_gym.mechanics.ConstrainedSystem] checks
 whole batches with `check_param_rows` and `check_state_rows`, one vectorised
 comparison per call and a search for the culprit only when one exists.

@@ -1,9 +1,10 @@
-"""Fleets: many copies of one unit system that share an autonomous part, compiled once for any size.
+"""Fleets: many copies of one unit system that share an autonomous part, derived once for any size.
 
 Flocking is the example: each follower with the leader is the same two-particle system, and the
-leader falls freely whatever the followers do.  Written out for ``N`` particles, the generated code
-(and numba's compile time and memory) would grow with ``N``; as a fleet, the unit system is
-compiled once and a loop over the copies does the rest (`vnhc_gym.mechanics._fleet`).
+leader falls freely whatever the followers do.  Written out for ``N`` particles, the derivation
+(and the printed code, and its compile time) would grow with ``N``; as a fleet, the unit system is
+derived and printed once and ``jax.vmap`` over the copies does the rest
+(`vnhc_gym.mechanics.functional_fleet`).
 
 The fleet's law is the unit's law copy by copy: ``phi^b`` involves only copy ``b``'s coordinates,
 copy ``b``'s controls move only its own coordinates, so ``C`` is block-diagonal with the units'
@@ -14,24 +15,18 @@ blocks and ``G`` stacks the units' ``G``.  This needs the shared coordinates to 
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from vnhc_gym.mechanics._checks import check_param
-from vnhc_gym.mechanics.codegen import fill_template, splice
 
 if TYPE_CHECKING:
     from vnhc_gym.mechanics.constraint import SymbolicLaw
-    from vnhc_gym.mechanics.model import ConstrainedSystem
 
-__all__ = ["FleetLayout", "check_autonomous", "fleet_positive", "fleet_source"]
-
-_HERE = Path(__file__).parent
+__all__ = ["FleetLayout", "check_autonomous"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,7 +36,7 @@ class FleetLayout:
     Parameters
     ----------
     name : str
-        The fleet's name (generated-code file names, reprs).
+        The fleet's name (reprs, messages).
     n : int
         The fleet's number of coordinates.
     state_map : array of int, shape (R, 2 n_unit)
@@ -82,7 +77,7 @@ class FleetLayout:
         if len(self.param_defaults) != len(self.param_names):
             raise ValueError("param_defaults and param_names must have the same length")
         for name, value in zip(self.param_names, self.param_defaults, strict=True):
-            check_param(name, value, False, f"FleetLayout {self.name!r} param_defaults")  # signs: see fleet_positive
+            check_param(name, value, False, f"FleetLayout {self.name!r} param_defaults")  # signs: the unit's
         n_params = len(self.param_names)
         if sm.min() < 0 or sm.max() >= 2 * self.n or pm.min(initial=0) < 0 or pm.max(initial=0) >= n_params:
             raise ValueError("state_map / param_map index outside the fleet's state / parameters")
@@ -103,14 +98,6 @@ class FleetLayout:
         """Number of copies ``R``."""
         return int(self.state_map.shape[0])
 
-    def digest(self) -> str:
-        """A hash of the layout (part of the fleet module's cache key)."""
-        h = hashlib.sha256(repr((self.name, self.n, self.param_names, self.param_defaults,
-                                 self.output_names)).encode())
-        for a in (self.state_map, self.param_map, self.own):
-            h.update(np.ascontiguousarray(a).tobytes())
-        return h.hexdigest()
-
 
 def check_autonomous(law: SymbolicLaw, own: NDArray[np.bool_]) -> None:
     """Raise ``ValueError`` unless the unit's shared coordinates evolve on their own: their drift
@@ -127,49 +114,3 @@ def check_autonomous(law: SymbolicLaw, own: NDArray[np.bool_]) -> None:
                              f"({sorted(map(str, law.a0[i].free_symbols & mine))}): not a fleet")
         if any(sp.simplify(law.Y[i, a]) != 0 for a in range(system.m)):
             raise ValueError(f"shared coordinate {system.q[i]} is moved by a control: not a fleet")
-
-
-def fleet_positive(unit: ConstrainedSystem, layout: FleetLayout) -> tuple[bool, ...]:
-    """Which fleet parameters are declared positive: those that some copy reads as a positive unit
-    parameter."""
-    positive = np.zeros(len(layout.param_names), dtype=bool)
-    unit_positive = np.asarray(unit.param_positive, dtype=bool)
-    for row in layout.param_map:
-        positive[row[unit_positive]] = True
-    return tuple(bool(v) for v in positive)
-
-
-def _array(a: NDArray[np.generic]) -> str:
-    return f"np.array({a.tolist()!r}, dtype=np.{a.dtype.name})"
-
-
-def fleet_source(unit: ConstrainedSystem, layout: FleetLayout) -> str:
-    """The generated module of a fleet of ``unit``: the system template with the fleet's expression
-    functions (`vnhc_gym.mechanics._fleet`) over the unit's compiled module."""
-    check_autonomous(unit.symbolic, layout.own)
-    u = unit.compiled.__name__
-    names = ", ".join(f"{n} as U{n}" for n in ("M", "N", "NAUX", "NG", "NP"))
-    block = "\n".join([
-        f"from {u} import BLOCK, HOLONOMIC  # noqa: F401",
-        f"from {u} import {names}",
-        f"from {u} import _accel_at as _unit_accel_at, _aux_at as _unit_aux_at, _phi_at as _unit_phi_at",
-        f"from {u} import _cg as _unit_cg, _dyn as _unit_dyn, _energy as _unit_energy, _phi_h as _unit_phi_h",
-        f"from {u} import _tn as _unit_tn",
-        "",
-        f"NAME = {layout.name!r}",
-        f"R = {layout.replicas}",
-        f"N = {layout.n}",
-        f"NP = {len(layout.param_names)}",
-        f"PARAM_NAMES = {tuple(layout.param_names)!r}",
-        f"PARAM_DEFAULTS = {tuple(float(v) for v in layout.param_defaults)!r}",
-        f"PARAM_POSITIVE = {fleet_positive(unit, layout)!r}",
-        f"OUTPUT_NAMES = {tuple(layout.output_names)!r}",
-        f"STATE_MAP = {_array(layout.state_map)}",
-        f"PARAM_MAP = {_array(layout.param_map)}",
-        f"OWN = {_array(layout.own)}",
-        f"CONTROL_MAP = {_array(np.arange(layout.replicas * unit.m).reshape(layout.replicas, unit.m))}",
-        f"AUX_MAP = {_array(np.arange(layout.replicas * len(unit.output_names)).reshape(layout.replicas, -1))}",
-        "",
-    ]) + "\n"
-    fleet = splice((_HERE / "_fleet.py").read_text(encoding="utf-8"), "unit", block)
-    return fill_template(_HERE / "_system_template.py", "system", fleet, f"fleet {layout.name!r} of {unit.name!r}")

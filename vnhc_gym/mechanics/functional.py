@@ -18,7 +18,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-__all__ = ["acceleration", "law", "rk4_step", "rk4_step_feedback", "sampled_law", "vector_field"]
+__all__ = ["acceleration", "checked_law", "law", "measure", "rk4_step", "rk4_step_controlled", "sampled_law",
+           "transversality", "vector_field"]
 
 Array = Any  # a jax.Array (or anything jax.numpy accepts)
 
@@ -71,27 +72,93 @@ def rk4_step(system: ModuleType, s: Array, p: Array, u: Array, dt: float, subste
     return jax.lax.fori_loop(0, substeps, one, s, unroll=substeps <= _MAX_UNROLL)
 
 
-def rk4_step_feedback(system: ModuleType, s: Array, p: Array, u: Array, dt: float, gains: Array,
-                      substeps: int = 1, bound: Array | None = None) -> Array:
-    """As `rk4_step`, with the law re-evaluated at every RK4 stage on top of the held ``u`` (the
-    continuous-feedback reference); ``bound`` clips the total force per control."""
+def transversality(system: ModuleType, s: Array, p: Array) -> Array:
+    """How far the input fields are from tangent to the constraint: the law's singular test.
 
-    def field(x: Array) -> Array:
-        total = u + law(system, x, p, gains)
-        if bound is not None:
-            total = jnp.clip(total, -bound, bound)
-        return vector_field(system, x, p, total)
+    The smallest singular value of ``C^{ba} / (|J_b| |Y^a|)``, with the squared sizes of
+    ``system.singular_sizes`` (``|J_b|^2 = J_b M^-1 J_b^T`` then ``|Y^a|^2 = Y^a . M Y^a``): each
+    normalised entry is the cosine of an angle in the metric, so the measure lies in ``[0, 1]``, 0
+    where the inputs are tangent to the constraint, and rescaling masses, units, components or
+    controls leaves it alone.  0 where a size vanishes, NaN where ``C`` or a size is not finite.  A
+    system may supply its own (a fleet takes the smallest over its copies' blocks).
+    """
+    own = getattr(system, "transversality", None)
+    if own is not None:
+        return own(s, p)
+    return measure(system.decoupling_matrix(s, p), system.singular_sizes(s, p))
 
+
+def measure(c: Array, sizes: Array) -> Array:
+    """`transversality` of a decoupling matrix ``c`` ``(m, m)`` from its factors' squared ``sizes`` ``(2m,)``."""
+    m = c.shape[-1]
+    finite = jnp.all(jnp.isfinite(c)) & jnp.all(jnp.isfinite(sizes))
+    degenerate = jnp.any(sizes <= 0.0)
+    ok = finite & ~degenerate
+    safe = jnp.where(ok, sizes, 1.0)
+    root = jnp.sqrt(safe)  # divided one factor at a time: a product of sizes may overflow
+    normalised = jnp.where(ok, c, 0.0) / root[:m, None] / root[None, m:]
+    smallest = jnp.min(jnp.linalg.svd(normalised, compute_uv=False))
+    return jnp.where(finite, jnp.where(degenerate, 0.0, smallest), jnp.nan)
+
+
+def checked_law(system: ModuleType, s: Array, p: Array, gains: Array,
+                singular_tol: float | None) -> tuple[Array, Array]:
+    """`law` with its singular test: ``(u, singular)``, ``u = 0`` where the state is singular.
+
+    Singular: the `transversality` measure is not above ``singular_tol`` (``None``: no measure is
+    taken), or the law is not finite.
+    """
+    u = law(system, s, p, gains)
+    singular = ~jnp.all(jnp.isfinite(u))
+    if singular_tol is not None:
+        singular = singular | ~(transversality(system, s, p) > singular_tol)
+    return jnp.where(singular, jnp.zeros_like(u), u), singular
+
+
+def rk4_step_controlled(system: ModuleType, s: Array, p: Array, u: Array, dt: float, substeps: int = 1, *,
+                        feedback: str = "open", p_law: Array | None = None, gains: Array = 1.0,
+                        lower: Array = -jnp.inf, upper: Array = jnp.inf, singular_tol: float | None = None,
+                        ) -> tuple[Array, Array, Array]:
+    """One control period with the law in the loop: ``(new state, applied force, singular)``.
+
+    The force at each RK4 stage is ``clip(u)`` (``feedback="open"``), ``clip(u + u*(start))`` held
+    over the period (``"sampled"``, a zero-order hold) or ``clip(u + u*(stage))`` (``"continuous"``,
+    the theorem's setting), clipped to ``[lower, upper]``.  The law reads the parameters ``p_law``
+    (the model a controller is told; default ``p``) and is 0 where `checked_law` finds the state
+    singular; ``singular`` says whether it did at any evaluation.  The applied force is averaged
+    over the substeps' first stages.
+    """
+    pl = p if p_law is None else p_law
+    if feedback == "open":
+        held = jnp.clip(u, lower, upper)
+        return rk4_step(system, s, p, held, dt, substeps), held, jnp.zeros((), bool)
+    if feedback == "sampled":
+        u_law, singular = checked_law(system, s, pl, gains, singular_tol)
+        held = jnp.clip(u + u_law, lower, upper)
+        return rk4_step(system, s, p, held, dt, substeps), held, singular
+    if feedback != "continuous":
+        raise ValueError(f"feedback must be 'open', 'sampled' or 'continuous', got {feedback!r}")
     h = dt / substeps
 
-    def one(_: int, x: Array) -> Array:
-        k1 = field(x)
-        k2 = field(x + 0.5 * h * k1)
-        k3 = field(x + 0.5 * h * k2)
-        k4 = field(x + h * k3)
-        return x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    def control(x: Array) -> tuple[Array, Array]:
+        u_law, singular = checked_law(system, x, pl, gains, singular_tol)
+        return jnp.clip(u + u_law, lower, upper), singular
 
-    return jax.lax.fori_loop(0, substeps, one, s)
+    def field(x: Array) -> tuple[Array, Array]:
+        force, singular = control(x)
+        return vector_field(system, x, p, force), singular
+
+    def one(_: int, carry: tuple[Array, Array, Array]) -> tuple[Array, Array, Array]:
+        x, acc, seen = carry
+        k1, s1 = field(x)
+        k2, s2 = field(x + 0.5 * h * k1)
+        k3, s3 = field(x + 0.5 * h * k2)
+        k4, s4 = field(x + h * k3)
+        first, _ = control(x)
+        return (x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4), acc + first, seen | s1 | s2 | s3 | s4)
+
+    x, acc, seen = jax.lax.fori_loop(0, substeps, one, (s, jnp.zeros_like(u), jnp.zeros((), bool)))
+    return x, acc / substeps, seen
 
 
 def sampled_law(system: ModuleType, s: Array, p: Array, dt: float, gains: Array, substeps: int = 1,

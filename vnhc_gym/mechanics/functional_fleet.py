@@ -5,7 +5,7 @@ part: each follower of a flock with its leader is the same two-particle system. 
 fleet written out would give code (and a sympy derivation, and a compile time) that grows with
 ``R``; here the unit is printed once (`vnhc_gym.systems.printed`) and `FleetSystem` runs it on every
 copy at once with ``jax.vmap``, gathering copy ``b``'s unit state and parameters through the same
-`FleetLayout` the numba fleet reads.  The result has the attributes and functions of a printed
+`FleetLayout`.  The result has the attributes and functions of a printed
 module (``N``, ``M``, ``HOLONOMIC``, ``drift``, ``input_fields``, ``phi``, ``decoupling_matrix``,
 ``drift_term``, ...), so that `vnhc_gym.mechanics.functional` and
 `vnhc_gym.envs.functional` run on it unchanged.
@@ -14,7 +14,8 @@ Why it is exact: ``phi^b`` involves only copy ``b``'s coordinates and the shared
 ``b``'s controls move only its own coordinates, so ``phi`` and ``G`` stack the copies' values and
 ``C`` is block-diagonal with the copies' blocks; the shared coordinates' accelerations depend on
 neither the copies' coordinates nor the controls (`vnhc_gym.mechanics.fleet.check_autonomous`, run
-when the numba fleet is generated), so any copy's drift gives them (copy 0's is taken).
+when a fleet of a derived unit is made, and by a test on the flock's printed unit), so any copy's drift
+gives them (copy 0's is taken).
 
 Every function takes one state ``s`` (shape ``(2 N,)``) and one parameter vector ``p`` and is pure:
 ``jax.jit``, ``jax.vmap`` (over episodes) and differentiation apply as to a printed module.  The
@@ -47,7 +48,7 @@ class FleetSystem:
         The unit's printed module (`vnhc_gym.systems.printed`), e.g. ``flocking2`` for one
         follower and the leader.
     layout : FleetLayout
-        Where each copy sits in the fleet's state and parameters (the numba fleet's layout, e.g.
+        Where each copy sits in the fleet's state and parameters (e.g.
         `vnhc_gym.systems.flocking.flocking_layout`).  Its checks (every fleet coordinate owned by
         exactly one copy or shared, velocities at ``index + n``) are what make the maps below
         permutations.
@@ -61,8 +62,11 @@ class FleetSystem:
         Coordinates and controls of the fleet: ``layout.n`` and ``R`` times the unit's ``M``.
     HOLONOMIC : bool
         The unit's.
-    STATE_NAMES, PARAM_NAMES, PARAM_DEFAULTS, OUTPUT_NAMES : tuple
-        As in a printed module; the parameters are the layout's.
+    NAME : str
+        The layout's name.
+    STATE_NAMES, PARAM_NAMES, PARAM_DEFAULTS, PARAM_POSITIVE, OUTPUT_NAMES : tuple
+        As in a printed module; the parameters are the layout's (positive where some copy reads a
+        positive unit parameter).
     R : int
         Number of copies.
     UNIT : module
@@ -71,7 +75,7 @@ class FleetSystem:
     Notes
     -----
     Copy ``b``'s controls, ``phi``, ``G`` (and ``phi_h``, the extra outputs) are entries
-    ``b UM .. (b + 1) UM - 1`` of the fleet's, as in the numba fleet (``CONTROL_MAP``).  ``phi_h``
+    ``b UM .. (b + 1) UM - 1`` of the fleet's.  ``phi_h``
     exists only for a holonomic unit and ``outputs`` only for a unit with extra outputs, as in a
     printed module.
     """
@@ -95,6 +99,7 @@ class FleetSystem:
             raise ValueError(f"state_names must have {2 * n} entries, got {len(names)}")
 
         self.UNIT = unit
+        self.NAME = layout.name
         self.R = r
         self.N = n
         self.M = r * um
@@ -102,6 +107,11 @@ class FleetSystem:
         self.STATE_NAMES = names
         self.PARAM_NAMES = tuple(layout.param_names)
         self.PARAM_DEFAULTS = tuple(float(v) for v in layout.param_defaults)
+        # A fleet parameter is positive where some copy reads it as a positive unit parameter.
+        positive = np.zeros(len(layout.param_names), dtype=bool)
+        for row in np.asarray(layout.param_map):
+            positive[row[np.asarray(unit.PARAM_POSITIVE, dtype=bool)]] = True
+        self.PARAM_POSITIVE = tuple(bool(v) for v in positive)
         self.OUTPUT_NAMES = tuple(layout.output_names) if n_out else ()
         self._un, self._um = un, um
         # Gather maps (numpy constants: under jit they become constant index arrays, whatever R is).
@@ -173,10 +183,25 @@ class FleetSystem:
         """``G``: the rate of ``phi`` along the drift, shape ``(M,)``: the copies' in order."""
         return self._each("drift_term", s, p).reshape(-1)
 
+    def singular_sizes(self, s: Array, p: Array) -> Array:
+        """The squared sizes of ``C``'s factors, shape ``(2 M,)``: every copy's ``|J_b|^2``, then every
+        copy's ``|Y^a|^2``."""
+        sizes = self._each("singular_sizes", s, p)  # (R, 2 UM)
+        return jnp.concatenate([sizes[:, :self._um].reshape(-1), sizes[:, self._um:].reshape(-1)])
+
+    def transversality(self, s: Array, p: Array) -> Array:
+        """The law's singular test: the smallest of the copies' measures (``C`` is block-diagonal, so its
+        smallest singular value, normalised, is the smallest of its blocks')."""
+        from vnhc_gym.mechanics.functional import measure
+
+        c = self._each("decoupling_matrix", s, p)
+        sizes = self._each("singular_sizes", s, p)
+        return jnp.min(jax.vmap(measure)(c, sizes))
+
     def energy(self, s: Array, p: Array) -> Array:
         """Mechanical energy, a scalar: the copies' unit energies with the shared part counted once
         (minus ``R - 1`` times copy 0's energy with its own coordinates at zero; exact when the unit's
-        potential vanishes with them, as gravity's does at zero height, as in the numba fleet)."""
+        potential vanishes with them, as gravity's does at zero height)."""
         us, up = self._units(s, p)
         total = jnp.sum(jax.vmap(self.UNIT.energy)(us, up))
         own2 = np.concatenate([self._own, self._own])

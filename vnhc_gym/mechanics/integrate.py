@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vnhc_gym.mechanics.model import FEEDBACK_MODES, ConstrainedSystem, Feedback
+from vnhc_gym.mechanics.model import ConstrainedSystem, Feedback
 
 __all__ = ["Trajectory", "simulate"]
 
@@ -61,7 +61,7 @@ def simulate(model: ConstrainedSystem, state0: ArrayLike, dt: float, n_steps: in
         raise ValueError(f"n_steps must be an integer >= 1, got {n_steps}")
     if int(record_every) != record_every or record_every < 1:
         raise ValueError(f"record_every must be an integer >= 1, got {record_every}")
-    # One checked call validates every argument; the loop then calls the kernel directly.
+    # One checked call validates every argument; the loop then runs the checked rows.
     model.step(state0, dt, u=u, feedback=feedback, gains=gains, params=params, substeps=substeps)
     s, single = model._states(state0)
     b = s.shape[0]
@@ -69,7 +69,6 @@ def simulate(model: ConstrainedSystem, state0: ArrayLike, dt: float, n_steps: in
     k = model._gains(gains, b)
     uh = model._rows(u, b, model.m, "u", np.zeros(model.m))
     lo, hi = np.full(model.m, -np.inf), np.full(model.m, np.inf)
-    mode = FEEDBACK_MODES[feedback]
     rec_idx = list(range(0, n_steps + 1, record_every))
     if rec_idx[-1] != n_steps:
         rec_idx.append(n_steps)
@@ -78,25 +77,18 @@ def simulate(model: ConstrainedSystem, state0: ArrayLike, dt: float, n_steps: in
     us = np.zeros((n_rec - 1, b, model.m))
     states[0] = s
     cur = s.copy()
-    nxt = np.empty_like(cur)
-    u_step = np.empty((b, model.m))
-    flags = np.empty(b, dtype=np.int64)
     all_flags = np.zeros(b, dtype=np.int64)
     j = 1
     for step in range(1, n_steps + 1):
-        model.compiled.rk4(cur, p, p, uh, k, mode, lo, hi, float(dt), int(substeps), model.singular_tol, nxt, u_step,
-                          flags)
+        cur, u_step, flags = model._advance(cur, p, uh, k, float(dt), int(substeps), feedback, lo, hi)
         all_flags |= flags
-        cur, nxt = nxt, cur
         if j < n_rec and step == rec_idx[j]:
             states[j] = cur
             us[j - 1] = u_step
             j += 1
-    phi = np.empty((n_rec, b, model.m))
-    energy = np.empty((n_rec, b))
-    for i in range(n_rec):
-        model.compiled.phi(states[i], p, phi[i])
-        model.compiled.energy(states[i], p, energy[i])
+    flat = states.reshape(n_rec * b, -1)
+    phi = model.phi(flat, np.tile(p, (n_rec, 1))).reshape(n_rec, b, model.m)
+    energy = np.asarray(model.energy(flat, np.tile(p, (n_rec, 1)))).reshape(n_rec, b)
     t = np.asarray(rec_idx, dtype=np.float64) * dt
     if single:
         return Trajectory(t, states[:, 0], phi[:, 0], us[:, 0], energy[:, 0], all_flags[0])

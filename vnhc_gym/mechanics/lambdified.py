@@ -24,7 +24,8 @@ __all__ = ["LambdifiedSystem"]
 
 class LambdifiedSystem:
     """A derived law as the functions of a printed system module (see `vnhc_gym.mechanics.printing`):
-    ``drift``, ``input_fields``, ``phi``, ``decoupling_matrix``, ``drift_term``, ``energy``, ``outputs``
+    ``drift``, ``input_fields``, ``phi``, ``decoupling_matrix``, ``drift_term``, ``singular_sizes``,
+    ``energy``, ``outputs``
     (and ``phi_h`` for a holonomic constraint), each of one state ``s`` and one parameter vector ``p``.
 
     Parameters
@@ -37,10 +38,12 @@ class LambdifiedSystem:
 
     def __init__(self, law: SymbolicLaw, outputs: Mapping[str, sp.Expr] | None = None) -> None:
         system = law.system
+        self.NAME = system.name
         self.N, self.M = system.n, system.m
         self.STATE_NAMES = tuple(str(s) for s in (*system.q, *system.qd))
         self.PARAM_NAMES = tuple(str(s) for s in system.param_symbols)
         self.PARAM_DEFAULTS = tuple(float(system.params[s]) for s in system.param_symbols)
+        self.PARAM_POSITIVE = tuple(system.param_positive)
         self.OUTPUT_NAMES = tuple(outputs or {})
         self.HOLONOMIC = law.phi_h is not None
         state, params = [*system.q, *system.qd], list(system.param_symbols)
@@ -50,6 +53,8 @@ class LambdifiedSystem:
         self.phi = _function(state, params, list(law.phi), (m,))
         self.decoupling_matrix = _function(state, params, list(law.C), (m, m))
         self.drift_term = _function(state, params, list(law.G), (m,))
+        jn, yn = law.factor_sizes()
+        self.singular_sizes = _function(state, params, [*jn, *yn], (2 * m,))
         self.energy = _function(state, params, [law.energy], ())
         self.outputs = _function(state, params, list((outputs or {}).values()), (len(self.OUTPUT_NAMES),))
         if law.phi_h is not None:

@@ -1,28 +1,26 @@
 """Numeric, batched evaluation of a constrained mechanical system.
 
-[`ConstrainedSystem`][vnhc_gym.mechanics.ConstrainedSystem] is the public face of the core: it
-compiles the symbolic law once (cached on disk) and evaluates ``phi``, ``C``, ``G(phi)``, ``u*``,
-``u_hat``, the energy and RK4 steps for one state (shape ``(2n,)``) or a batch (shape ``(B, 2n)``).
-The public methods check their arguments; the environments call the compiled kernels
-(``self.compiled``) directly with preallocated buffers, like python-control's checked ``dynamics``
-beside a fast ``_rhs``.
+[`ConstrainedSystem`][vnhc_gym.mechanics.ConstrainedSystem] is the checked numpy face of the core: it
+evaluates ``phi``, ``C``, ``G(phi)``, ``u*``, ``u_hat``, the energy and RK4 steps for one state
+(shape ``(2n,)``) or a batch (shape ``(B, 2n)``), by running the pure ``jax.numpy`` functions of
+`vnhc_gym.mechanics.functional` on the system's functions (a printed module, a lambdified law or a
+fleet) under ``jax.vmap`` and ``jax.jit``, in float64 inside ``jax.enable_x64`` (a user's global JAX
+settings stay as they were).  Like python-control's checked ``dynamics`` beside a fast ``_rhs``, the
+methods check their arguments; the environments and the JAX baselines call the functions directly.
 """
 
 from __future__ import annotations
 
-import os
-from collections.abc import Callable, Iterable, Mapping
-from pathlib import Path
-from types import ModuleType
+import importlib
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any, Literal
 
+import jax
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vnhc_gym.mechanics import functional as F
 from vnhc_gym.mechanics._checks import check_param, check_param_rows, check_state_rows, lower_bounds
-from vnhc_gym.mechanics.cache import load_module
-from vnhc_gym.mechanics.codegen import module_key, recipe_parts
-from vnhc_gym.mechanics.numerics import FLAG_NONFINITE, FLAG_SINGULAR
 
 if TYPE_CHECKING:  # the symbolic layer (sympy) is imported only when a model needs it
     import sympy as sp
@@ -35,15 +33,18 @@ __all__ = ["ConstrainedSystem", "SingularControlError", "Feedback", "FLAG_SINGUL
            "FEEDBACK_MODES"]
 
 Feedback = Literal["open", "continuous", "sampled"]
-#: Integer codes of the feedback modes understood by the compiled RK4 kernel.
+#: The feedback modes of `ConstrainedSystem.step` (codes kept for callers that index by them).
 FEEDBACK_MODES: dict[str, int] = {"open": 0, "continuous": 1, "sampled": 2}
+
+# Bits of the per-row status flag of `ConstrainedSystem.step`.
+FLAG_SINGULAR = 1  #: the input fields were (nearly) tangent to the constraint at some evaluation (u* set to 0).
+FLAG_NONFINITE = 2  #: the state became non-finite.
 
 Array = NDArray[np.float64]
 
-#: Names every generated system module defines (a cache entry without one of them is rebuilt).
-KERNELS = ("rk4", "rk4_row", "law", "law_row", "work", "phi", "phi_h", "aux", "cg", "dyn", "energy", "transversal",
-           "_phi", "_aux", "_cgn", "NAME", "N", "M", "NP", "NG", "NAUX", "HOLONOMIC", "BLOCK", "PARAM_NAMES",
-           "PARAM_DEFAULTS", "PARAM_POSITIVE", "OUTPUT_NAMES")
+#: The smallest padded batch: batches are padded to a power of two, so that a program compiled for
+#: one size serves every batch up to it (a new size costs a compilation, ~0.1-1 s).
+_MIN_ROWS = 8
 
 Parts = tuple["MechanicalSystem", "VelocityConstraint | HolonomicConstraint", "dict[str, sp.Expr]"]
 #: A recipe's builder: returns ``(system, constraint)`` or ``(system, constraint, outputs)``.
@@ -92,7 +93,7 @@ def _check_tol(singular_tol: float) -> float:
 
 
 class ConstrainedSystem:
-    """A mechanical control system with a virtual constraint, compiled for fast evaluation.
+    """A mechanical control system with a virtual constraint, evaluated in batches.
 
     Parameters
     ----------
@@ -101,8 +102,8 @@ class ConstrainedSystem:
     constraint : VelocityConstraint or HolonomicConstraint
         The virtual constraint, with ``system.m`` components.
     outputs : mapping of str to sympy expression, optional
-        Extra functions of the state and parameters to compile (for example the sea current
-        at the boat), evaluated by [`outputs`][vnhc_gym.mechanics.ConstrainedSystem.outputs].
+        Extra functions of the state and parameters (for example the sea current at the boat),
+        evaluated by [`outputs`][vnhc_gym.mechanics.ConstrainedSystem.outputs].
     singular_tol : float, default 1e-10
         The law's singular test: a state is singular when its transversality measure
         ([`transversality`][vnhc_gym.mechanics.ConstrainedSystem.transversality]) is at most
@@ -111,6 +112,15 @@ class ConstrainedSystem:
         ``J_b = d phi^b/d qd`` and of the input fields ``Y^a`` it is built from: a number in
         ``[0, 1]`` that rescaling masses, units, constraint components or controls never changes,
         and that is small where the constraint's gradient is nearly orthogonal to every input.
+
+    Attributes
+    ----------
+    functions : module or object
+        The system's pure ``jax.numpy`` functions of one state and one parameter vector (a printed
+        module of `vnhc_gym.systems.printed`, a
+        [`LambdifiedSystem`][vnhc_gym.mechanics.lambdified.LambdifiedSystem] or a
+        ``FleetSystem`` of `vnhc_gym.mechanics.functional_fleet`); what the environments
+        and the JAX baselines run.
 
     Notes
     -----
@@ -124,11 +134,10 @@ class ConstrainedSystem:
     [`simulate`][vnhc_gym.mechanics.simulate] with the law in the loop) refuse a non-finite state
     likewise.  In the open loop a non-finite state is integrated and flagged ``FLAG_NONFINITE``.
 
-    The constructor keys the generated-code cache on the symbolic input itself (and on the text of
-    the core files that derive and compile it), so it needs sympy.
-    [`from_recipe`][vnhc_gym.mechanics.ConstrainedSystem.from_recipe] (used by the shipped systems)
-    keys it on a small recipe and the source files instead, and builds the symbolic side only when
-    it is asked for: a warm start neither imports sympy nor derives anything.
+    The constructor derives the law with sympy and lambdifies it (a second or two for a small
+    system).  [`from_recipe`][vnhc_gym.mechanics.ConstrainedSystem.from_recipe] (used by the
+    package's systems) imports the system's printed module instead and builds the symbolic side only
+    when it is asked for: a start neither imports sympy nor derives anything.
     """
 
     name: str
@@ -140,99 +149,53 @@ class ConstrainedSystem:
     param_positive: tuple[bool, ...]
     default_params: Array
     output_names: tuple[str, ...]
-    compiled: ModuleType
+    functions: Any
 
     def __init__(self, system: MechanicalSystem, constraint: VelocityConstraint | HolonomicConstraint,
                  outputs: Mapping[str, sp.Expr] | None = None, singular_tol: float = 1e-10) -> None:
-        import sympy as sp
-
-        from vnhc_gym.mechanics.constraint import HolonomicConstraint
-
-        self.singular_tol = _check_tol(singular_tol)
         self._recipe: tuple[object, ...] | None = None
-        self._unit_layout: tuple[ConstrainedSystem, FleetLayout] | None = None
         self._build: Builder | None = None
+        self._printed: str | None = None
+        self._unit_layout: tuple[ConstrainedSystem, FleetLayout, tuple[str, ...] | None] | None = None
         self._parts: Parts | None = (system, constraint, dict(outputs or {}))
         self._law: SymbolicLaw | None = None
-        holonomic = isinstance(constraint, HolonomicConstraint)
-        expr = constraint.phi_h if isinstance(constraint, HolonomicConstraint) else constraint.phi
-        key = [system.name, sp.srepr(system.q), sp.srepr(system.qd), sp.srepr(system.mass_matrix),
-               sp.srepr(system.control_forces), sp.srepr(system.potential), sp.srepr(system.external_force),
-               sp.srepr(tuple(system.params)), str(holonomic), sp.srepr(expr),
-               sp.srepr(tuple(self._outputs.items()))]
-        self._key = module_key(key)
-        self.compiled = self._load()
-        # From the symbolic input, not the module: the key does not cover the default values.
-        self.name = system.name
-        self.n = system.n
-        self.m = system.m
-        self.n_gains = int(self.compiled.NG)
-        self.holonomic = holonomic
-        self.param_names = tuple(str(p) for p in system.params)
-        self.param_positive = system.param_positive
-        self.default_params = np.asarray(system.default_param_values(), dtype=np.float64)
-        self.output_names = tuple(self._outputs)
-        self._lower = lower_bounds(self.param_positive)
+        self._setup(singular_tol)
 
     @classmethod
-    def from_recipe(cls, recipe: tuple[object, ...], build: Builder, *,
-                    sources: Iterable[str | os.PathLike[str]] = (), singular_tol: float = 1e-10) -> ConstrainedSystem:
-        """A compiled system named by ``recipe``; ``build()`` runs only if the symbolic side is needed.
+    def from_recipe(cls, recipe: tuple[object, ...], build: Builder, *, printed: str | None = None,
+                    singular_tol: float = 1e-10) -> ConstrainedSystem:
+        """A system named by ``recipe``, run from its printed module; ``build()`` runs only if the
+        symbolic side is needed.
 
         Parameters
         ----------
         recipe : tuple of str, int, float or bool
-            Names the system within ``sources``, e.g. ``("flocking", 4)``.
+            Names the system, e.g. ``("usv", "affine")``.
         build : callable
             ``build() -> (system, constraint)`` or ``(system, constraint, outputs)``, the
             arguments of the constructor.  It is stored (and pickled with the model), so it must
             be picklable: a module-level function or a ``functools.partial`` of one, not a lambda.
-        sources : iterable of path
-            The files that define what ``build`` returns (its own module, the modules it draws
-            expressions from).  The cache key is ``recipe`` + a sha256 of their text and of the
-            core files (``codegen.CORE_SOURCES``): editing any of them regenerates the module.  A
-            change that these files do not show (a builder reading a data file, say) must change
-            ``recipe``.
+        printed : str, optional
+            The import path of the system's printed module (``"vnhc_gym.systems.printed.sled"``);
+            a test holds it to what printing ``build()`` gives.  Without one the law is derived and
+            lambdified on first use.
         singular_tol : float, default 1e-10
-
-        Notes
-        -----
-        On a cache hit this neither imports sympy nor calls ``build``: every attribute the
-        numeric methods need (sizes, parameter names and defaults, output names) is read from
-        the generated module.  ``system``, ``constraint`` and ``symbolic`` call ``build`` on
-        first access.
         """
         self = cls.__new__(cls)
-        self.singular_tol = _check_tol(singular_tol)
         self._recipe = tuple(recipe)
         self._build = build
+        self._printed = printed
+        self._unit_layout = None
         self._parts = None
         self._law = None
-        self._unit_layout = None
-        self._key = module_key(recipe_parts(self._recipe), sources)
-        self.compiled = self._load()
-        self._read_metadata()
+        self._setup(singular_tol)
         return self
-
-    def _read_metadata(self) -> None:
-        """Sizes, names and defaults from the compiled module (no sympy needed)."""
-        k = self.compiled
-        self.name = str(k.NAME)
-        self.n = int(k.N)
-        self.m = int(k.M)
-        self.n_gains = int(k.NG)
-        self.holonomic = bool(k.HOLONOMIC)
-        self.param_names = tuple(k.PARAM_NAMES)
-        self.param_positive = tuple(bool(v) for v in k.PARAM_POSITIVE)
-        self.default_params = np.array(k.PARAM_DEFAULTS, dtype=np.float64)
-        self.output_names = tuple(k.OUTPUT_NAMES)
-        self._lower = lower_bounds(self.param_positive)
 
     @classmethod
     def fleet(cls, unit: ConstrainedSystem, layout: FleetLayout, *, build: Builder | None = None,
-              singular_tol: float = 1e-10) -> ConstrainedSystem:
-        """A fleet of ``layout.replicas`` copies of ``unit`` sharing an autonomous part, compiled once
-        for any number of copies (see `vnhc_gym.mechanics.fleet`).
+              state_names: tuple[str, ...] | None = None, singular_tol: float = 1e-10) -> ConstrainedSystem:
+        """A fleet of ``layout.replicas`` copies of ``unit`` sharing an autonomous part, run as
+        ``jax.vmap`` over the unit (see `vnhc_gym.mechanics.fleet`), for any number of copies.
 
         Parameters
         ----------
@@ -243,67 +206,76 @@ class ConstrainedSystem:
         build : callable, optional
             ``build() -> (system, constraint)`` of the whole fleet written out, for ``system``,
             ``constraint`` and ``symbolic`` (display and tests); not needed to run anything.
+        state_names : tuple of str, optional
+            The fleet's state names (``q`` then ``qd``); default ``s_0, s_1, ...``.
         singular_tol : float, default 1e-10
         """
-        from vnhc_gym.mechanics import fleet as fleet_module
-
         if layout.state_map.shape[1] != 2 * unit.n or layout.own.shape[0] != unit.n or \
                 layout.param_map.shape[1] != len(unit.param_names):
             raise ValueError(f"the layout does not fit the unit {unit.name!r}: state_map needs {2 * unit.n} columns "
                              f"(got {layout.state_map.shape[1]}), own {unit.n} entries (got {layout.own.shape[0]}), "
                              f"param_map {len(unit.param_names)} columns (got {layout.param_map.shape[1]})")
-        from vnhc_gym.mechanics.fleet import fleet_positive
-
-        for name, value, positive in zip(layout.param_names, layout.param_defaults, fleet_positive(unit, layout),
-                                         strict=True):
-            check_param(name, value, positive, f"the defaults of fleet {layout.name!r}")
         self = cls.__new__(cls)
-        self.singular_tol = _check_tol(singular_tol)
         self._recipe = ("fleet", layout.name, layout.replicas)
         self._build = build
+        self._printed = None
         self._parts = None
         self._law = None
-        self._unit_layout = (unit, layout)
-        self._key = module_key(["fleet", unit._key, layout.digest()], [fleet_module.__file__ or "",
-                                                                      Path(fleet_module.__file__).with_name("_fleet.py")])
-        self.compiled = self._load()
-        self._read_metadata()
+        self._unit_layout = (unit, layout, state_names)
+        if unit._law is not None:  # a derived unit (a printed one is held to its derivation by a test)
+            from vnhc_gym.mechanics.fleet import check_autonomous
+
+            check_autonomous(unit._law, layout.own)
+        self._setup(singular_tol)
+        for name, value, positive in zip(layout.param_names, layout.param_defaults, self.param_positive,
+                                         strict=True):
+            check_param(name, value, positive, f"the defaults of fleet {layout.name!r}")
         return self
 
-    def _load(self) -> ModuleType:
+    def _setup(self, singular_tol: float) -> None:
+        """The functions, and the sizes, names and defaults read from them (no sympy for a printed module)."""
+        self.singular_tol = _check_tol(singular_tol)
+        self.functions = self._make_functions()
+        f = self.functions
+        self.name = str(f.NAME)
+        self.n = int(f.N)
+        self.m = int(f.M)
+        self.holonomic = bool(f.HOLONOMIC)
+        self.n_gains = 2 * self.m if self.holonomic else self.m
+        self.param_names = tuple(f.PARAM_NAMES)
+        self.param_positive = tuple(bool(v) for v in f.PARAM_POSITIVE)
+        self.default_params = np.array(f.PARAM_DEFAULTS, dtype=np.float64)
+        self.output_names = tuple(getattr(f, "OUTPUT_NAMES", ()))
+        self._lower = lower_bounds(self.param_positive)
+        self._programs: dict[tuple[object, ...], Callable[..., Any]] = {}
+
+    def _make_functions(self) -> Any:
+        if self._printed is not None:
+            return importlib.import_module(self._printed)
         if self._unit_layout is not None:
-            label = f"{self._unit_layout[1].name} (a fleet of {self._unit_layout[0].name})"
-        elif self._recipe is not None:
-            label = "/".join(map(str, self._recipe))
-        else:
-            label = self._symbolic_parts()[0].name
-        return load_module(self._key, self._make_source, label=label, required=KERNELS)
+            from vnhc_gym.mechanics.functional_fleet import FleetSystem
 
-    def _make_source(self) -> str:
-        if self._unit_layout is not None:
-            from vnhc_gym.mechanics.fleet import fleet_source
+            unit, layout, names = self._unit_layout
+            return FleetSystem(unit.functions, layout, names)
+        from vnhc_gym.mechanics.lambdified import LambdifiedSystem
 
-            return fleet_source(*self._unit_layout)
-        from vnhc_gym.mechanics.codegen import generate_source
-
-        return generate_source(self.symbolic, self._outputs)
+        return LambdifiedSystem(self.symbolic, self._outputs)
 
     def __getstate__(self) -> dict[str, object]:
-        # The compiled module is not picklable; it is re-imported from the on-disk cache.  A
+        # Functions and compiled programs are rebuilt on load (a printed module by its name); a
         # recipe-built model pickles its recipe and builder, not the sympy objects.
         state = self.__dict__.copy()
-        state["compiled"] = None
-        state["_law"] = None
+        for key in ("functions", "_programs", "_law"):
+            state.pop(key, None)
         if state["_build"] is not None:
             state["_parts"] = None
         return state
 
     def __setstate__(self, state: dict[str, object]) -> None:
         self.__dict__.update(state)
-        self.compiled = self._load()
-        if "_lower" not in state:  # pickled before the signs were recorded: read them from the module
-            self.param_positive = tuple(bool(v) for v in self.compiled.PARAM_POSITIVE)
-            self._lower = lower_bounds(self.param_positive)
+        self._law = None
+        self._programs = {}
+        self.functions = self._make_functions()
 
     # ------------------------------------------------------------------ symbolic side
     def _symbolic_parts(self) -> Parts:
@@ -314,11 +286,10 @@ class ConstrainedSystem:
             system, constraint, *rest = self._build()
             outputs = dict(rest[0] or {}) if rest else {}
             seen = (system.name, system.n, system.m, tuple(str(p) for p in system.params), tuple(outputs))
-            # (On a cache miss this runs before the metadata is read from the new module.)
             expected = tuple(getattr(self, a, None) for a in ("name", "n", "m", "param_names", "output_names"))
             if "name" in self.__dict__ and seen != expected:
                 raise RuntimeError(f"the builder of recipe {self._recipe!r} returned a system {seen} that does not "
-                                   f"match its cached module {expected}; is the builder deterministic?")
+                                   f"match its functions {expected}; is the builder deterministic?")
             self._parts = (system, constraint, outputs)
         return self._parts
 
@@ -339,12 +310,13 @@ class ConstrainedSystem:
     @property
     def recipe(self) -> tuple[object, ...] | None:
         """The recipe of a model made by
-        [`from_recipe`][vnhc_gym.mechanics.ConstrainedSystem.from_recipe], else ``None``."""
+        [`from_recipe`][vnhc_gym.mechanics.ConstrainedSystem.from_recipe] or
+        [`fleet`][vnhc_gym.mechanics.ConstrainedSystem.fleet], else ``None``."""
         return self._recipe
 
     @property
     def symbolic(self) -> SymbolicLaw:
-        """The symbolic law (derived lazily: a warm start from the cache never needs it)."""
+        """The symbolic law (derived on first access)."""
         if self._law is None:
             from vnhc_gym.mechanics.constraint import derive_law
 
@@ -356,7 +328,7 @@ class ConstrainedSystem:
 
         Same checks and messages as
         [`MechanicalSystem.default_param_values`][vnhc_gym.mechanics.system.MechanicalSystem.default_param_values], from
-        the compiled module's parameter names, defaults and signs (no sympy).
+        the functions' parameter names, defaults and signs (no sympy).
 
         Raises
         ------
@@ -414,21 +386,42 @@ class ConstrainedSystem:
     def _out(x: Array, single: bool) -> Array:
         return x[0] if single else x
 
+    def _run(self, key: tuple[object, ...], make: Callable[[], Callable[..., Any]], rows: tuple[Array, ...],
+             shared: tuple[Any, ...] = ()) -> Any:
+        """``make()`` (a function of one row) on every row of ``rows`` (each ``(B, ...)``), with the
+        arguments ``shared`` common to all rows: one compiled call in float64, numpy results."""
+        program = self._programs.get(key)
+        if program is None:
+            fn = make()
+            program = jax.jit(jax.vmap(fn, in_axes=(0,) * len(rows) + (None,) * len(shared)))
+            self._programs[key] = program
+        b = rows[0].shape[0]
+        size = max(_MIN_ROWS, 1 << max(b - 1, 0).bit_length())
+        if b == 0:
+            padded = tuple(np.zeros((size, *r.shape[1:])) for r in rows)
+        else:  # padded with copies of the last row: finite wherever the rows are
+            padded = tuple(np.concatenate([r, np.repeat(r[-1:], size - b, axis=0)]) if size > b else r for r in rows)
+        with jax.enable_x64(True):
+            out = program(*padded, *shared)
+            return jax.tree.map(lambda a: np.array(a)[:b], out)
+
+    def _each(self, name: str, state: ArrayLike, params: ArrayLike | None) -> tuple[Any, bool]:
+        """The functions' ``name`` on every row: ``(values, single)``."""
+        s, single = self._states(state)
+        p = self._params(params, s.shape[0])
+        return self._run((name,), lambda: getattr(self.functions, name), (s, p)), single
+
     # ------------------------------------------------------------------ evaluation
     def phi(self, state: ArrayLike, params: ArrayLike | None = None) -> Array:
         """Velocity constraint ``phi(q, qd)`` (``psi = d phi_h/dt`` if holonomic), shape ``(..., m)``."""
-        s, single = self._states(state)
-        out = np.empty((s.shape[0], self.m))
-        self.compiled.phi(s, self._params(params, s.shape[0]), out)
+        out, single = self._each("phi", state, params)
         return self._out(out, single)
 
     def phi_h(self, state: ArrayLike, params: ArrayLike | None = None) -> Array:
         """Holonomic constraint values ``phi_h(q)``; only for a holonomic constraint."""
         if not self.holonomic:
             raise ValueError("phi_h is only defined for a HolonomicConstraint")
-        s, single = self._states(state)
-        out = np.empty((s.shape[0], self.m))
-        self.compiled.phi_h(s, self._params(params, s.shape[0]), out)
+        out, single = self._each("phi_h", state, params)
         return self._out(out, single)
 
     def transversality(self, state: ArrayLike, params: ArrayLike | None = None) -> Array | float:
@@ -453,32 +446,23 @@ class ConstrainedSystem:
             finite.
         """
         s, single = self._states(state)
-        out = np.empty(s.shape[0])
-        self.compiled.transversal(s, self._params(params, s.shape[0]), out)
+        out = self._measure(s, self._params(params, s.shape[0]))
         return float(out[0]) if single else out
+
+    def _measure(self, s: Array, p: Array) -> Array:
+        return np.asarray(self._run(("transversality",), lambda: lambda x, q: F.transversality(self.functions, x, q),
+                                    (s, p)))
 
     def decoupling(self, state: ArrayLike, params: ArrayLike | None = None) -> tuple[Array, Array]:
         """``(C, G(phi))``: ``C[b, a] = d phi^b/d qd . Y^a`` and the Lie derivative along the drift."""
-        s, single = self._states(state)
-        b = s.shape[0]
-        k = int(self.compiled.BLOCK)
-        blocks = np.empty((b, self.m, k))
-        g = np.empty((b, self.m))
-        self.compiled.cg(s, self._params(params, b), blocks, g)
-        # Expand the block rows into the full m x m matrix.
-        c = np.zeros((b, self.m, self.m))
-        rows = np.arange(self.m)
-        for j in range(k):
-            c[:, rows, rows // k * k + j] = blocks[:, :, j]
+        c, single = self._each("decoupling_matrix", state, params)
+        g, _ = self._each("drift_term", state, params)
         return self._out(c, single), self._out(g, single)
 
     def dynamics(self, state: ArrayLike, params: ArrayLike | None = None) -> tuple[Array, Array]:
         """``(a0, Y)``: drift acceleration ``(..., n)`` and input fields ``(..., n, m)``."""
-        s, single = self._states(state)
-        b = s.shape[0]
-        a0 = np.empty((b, self.n))
-        y = np.empty((b, self.n, self.m))
-        self.compiled.dyn(s, self._params(params, b), a0, y)
+        a0, single = self._each("drift", state, params)
+        y, _ = self._each("input_fields", state, params)
         return self._out(a0, single), self._out(y, single)
 
     def acceleration(self, state: ArrayLike, u: ArrayLike, params: ArrayLike | None = None) -> Array:
@@ -488,16 +472,16 @@ class ConstrainedSystem:
 
     def energy(self, state: ArrayLike, params: ArrayLike | None = None) -> Array | float:
         """Mechanical energy ``1/2 qd^T M qd + V(q)``."""
-        s, single = self._states(state)
-        out = np.empty(s.shape[0])
-        self.compiled.energy(s, self._params(params, s.shape[0]), out)
+        out, single = self._each("energy", state, params)
         return float(out[0]) if single else out
 
     def outputs(self, state: ArrayLike, params: ArrayLike | None = None) -> Array:
-        """The extra compiled outputs, in the order of ``output_names``."""
-        s, single = self._states(state)
-        out = np.empty((s.shape[0], len(self.output_names)))
-        self.compiled.aux(s, self._params(params, s.shape[0]), out)
+        """The extra outputs, in the order of ``output_names``."""
+        if not self.output_names:
+            s, single = self._states(state)
+            self._params(params, s.shape[0])
+            return self._out(np.empty((s.shape[0], 0)), single)
+        out, single = self._each("outputs", state, params)
         return self._out(out, single)
 
     def control(self, state: ArrayLike, gains: ArrayLike | None = None, params: ArrayLike | None = None,
@@ -533,16 +517,13 @@ class ConstrainedSystem:
         p = self._params(params, b)
         k = self._gains(gains, b)
         self._law_states(s, single)
-        u = np.empty((b, self.m))
-        flags = np.empty(b, dtype=np.int64)
-        self.compiled.law(s, p, k, self.singular_tol, u, flags)
-        singular = (flags & FLAG_SINGULAR) != 0
+        tol = self.singular_tol
+        u, singular = self._run(("law",), lambda: lambda x, q, g: F.checked_law(self.functions, x, q, g, tol),
+                                (s, p, k))
         if on_singular == "raise":
             if singular.any():
                 rows = np.flatnonzero(singular)
-                measure = np.empty(rows.size)
-                self.compiled.transversal(np.ascontiguousarray(s[rows]), np.ascontiguousarray(p[rows]), measure)
-                raise SingularControlError(rows, measure, self.singular_tol)
+                raise SingularControlError(rows, self._measure(s[rows], p[rows]), tol)
             return self._out(u, single)
         return self._out(u, single), (singular[0] if single else singular)
 
@@ -607,12 +588,25 @@ class ConstrainedSystem:
         k = self._gains(gains, b)
         if feedback != "open":
             self._law_states(s, single)
-        out = np.empty_like(s)
-        u_out = np.empty((b, self.m))
-        flags = np.empty(b, dtype=np.int64)
-        self.compiled.rk4(s, p, p, uh, k, FEEDBACK_MODES[feedback], lo, hi, float(dt), int(substeps),
-                         self.singular_tol, out, u_out, flags)
+        out, u_out, flags = self._advance(s, p, uh, k, float(dt), int(substeps), feedback, lo, hi)
         return self._out(out, single), self._out(u_out, single), (flags[0] if single else flags)
+
+    def _advance(self, s: Array, p: Array, u: Array, k: Array, dt: float, substeps: int, feedback: str,
+                 lo: Array, hi: Array) -> tuple[Array, Array, NDArray[np.int64]]:
+        """`step` on checked rows: ``(new states, applied forces, flags)``."""
+        functions, tol = self.functions, self.singular_tol
+
+        def make() -> Callable[..., Any]:
+            def one(x: Any, q: Any, force: Any, g: Any, h: Any, lower: Any, upper: Any) -> Any:
+                new, applied, singular = F.rk4_step_controlled(functions, x, q, force, h, substeps, feedback=feedback,
+                                                               gains=g, lower=lower, upper=upper, singular_tol=tol)
+                return new, applied, singular
+
+            return one
+
+        new, applied, singular = self._run(("step", feedback, substeps), make, (s, p, u, k), (dt, lo, hi))
+        flags = np.where(singular, FLAG_SINGULAR, 0) | np.where(np.isfinite(new).all(axis=1), 0, FLAG_NONFINITE)
+        return new, applied, flags.astype(np.int64)
 
     def __repr__(self) -> str:
         kind = "holonomic" if self.holonomic else "velocity"

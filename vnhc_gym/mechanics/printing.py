@@ -2,7 +2,8 @@
 
 sympy stays the source of truth: [`derive_law`][vnhc_gym.mechanics.derive_law] gives the drift
 acceleration ``a0``, the input fields ``Y``, the constraint ``phi`` (and ``phi_h`` for a holonomic
-one), the decoupling matrix ``C``, the drift term ``G`` and the energy; this module prints each as
+one), the decoupling matrix ``C``, the drift term ``G``, the squared sizes of ``C``'s factors (the
+law's singular test) and the energy; this module prints each as
 one function of a single state ``s`` (shape ``(2n,)``) and parameter vector ``p``, with its common
 subexpressions computed once.  The printed text is a module a reader opens like any other (it is
 shipped in the package and imported, never written to a cache), and
@@ -83,10 +84,12 @@ def print_module(law: SymbolicLaw, title: str, source: str, outputs: Mapping[str
     Returns
     -------
     str
-        The module: ``N``, ``M``, ``STATE_NAMES``, ``PARAM_NAMES``, ``PARAM_DEFAULTS``,
-        ``OUTPUT_NAMES``, ``HOLONOMIC`` and the functions ``drift`` (``a0``, shape ``(n,)``),
-        ``input_fields`` (``Y``, ``(n, m)``), ``phi`` (``(m,)``), ``phi_h`` (holonomic only),
-        ``decoupling_matrix`` (``C``, ``(m, m)``), ``drift_term`` (``G``, ``(m,)``), ``energy``
+        The module: ``NAME``, ``N``, ``M``, ``STATE_NAMES``, ``PARAM_NAMES``, ``PARAM_DEFAULTS``,
+        ``PARAM_POSITIVE``, ``OUTPUT_NAMES``, ``HOLONOMIC`` and the functions ``drift`` (``a0``,
+        shape ``(n,)``), ``input_fields`` (``Y``, ``(n, m)``), ``phi`` (``(m,)``), ``phi_h``
+        (holonomic only), ``decoupling_matrix`` (``C``, ``(m, m)``), ``drift_term`` (``G``,
+        ``(m,)``), ``singular_sizes`` (``(2m,)``, see
+        [`SymbolicLaw.factor_sizes`][vnhc_gym.mechanics.SymbolicLaw.factor_sizes]), ``energy``
         (``()``) and ``outputs``.
     """
     from sympy.printing.numpy import JaxPrinter
@@ -100,6 +103,7 @@ def print_module(law: SymbolicLaw, title: str, source: str, outputs: Mapping[str
     params = dict(zip(p_syms, _names(p_syms, "p_", taken), strict=True))
     printer = JaxPrinter({"fully_qualified_modules": True})
     outputs = dict(outputs or {})
+    jn, yn = law.factor_sizes()
     functions = [
         ("drift", "Drift acceleration ``a0`` (no control), shape ``(n,)``.", list(law.a0), (n,)),
         ("input_fields", "Input fields ``Y`` (column ``a``: the acceleration of unit control ``a``), shape "
@@ -107,6 +111,8 @@ def print_module(law: SymbolicLaw, title: str, source: str, outputs: Mapping[str
         ("phi", "The constraint ``phi`` (``psi`` for a holonomic one), shape ``(m,)``.", list(law.phi), (m,)),
         ("decoupling_matrix", "Decoupling matrix ``C = d phi / d qd . Y``, shape ``(m, m)``.", list(law.C), (m, m)),
         ("drift_term", "``G``: the rate of ``phi`` along the drift, shape ``(m,)``.", list(law.G), (m,)),
+        ("singular_sizes", "Squared sizes ``|J_b|^2`` then ``|Y^a|^2`` of the factors of ``C = J Y`` (the law's "
+         "singular test), shape ``(2 m,)``.", [*jn, *yn], (2 * m,)),
         ("energy", "Mechanical energy, a scalar.", [law.energy], ()),
     ]
     if law.phi_h is not None:
@@ -124,11 +130,13 @@ def print_module(law: SymbolicLaw, title: str, source: str, outputs: Mapping[str
         "",
         "import jax.numpy as jnp",
         "",
+        f"NAME = {system.name!r}",
         f"N = {n}",
         f"M = {m}",
         f"STATE_NAMES = {tuple(str(s) for s in q_syms)!r}",
         f"PARAM_NAMES = {tuple(str(s) for s in p_syms)!r}",
         f"PARAM_DEFAULTS = {tuple(defaults)!r}",
+        f"PARAM_POSITIVE = {tuple(system.param_positive)!r}",
         f"OUTPUT_NAMES = {tuple(outputs)!r}",
         f"HOLONOMIC = {law.phi_h is not None!r}",
     ]

@@ -17,7 +17,7 @@ where ``F_dt`` is the RK4 step map of the model over one control period (open lo
 held; the same map an environment integrates with).  The ``m`` equations in ``m`` unknowns are
 solved by Newton's method, started from ``u*``, with a central finite-difference Jacobian;
 every candidate control and its ``2m`` perturbations of every batch row are integrated in one
-call of the compiled kernel ``model.compiled.rk4``.  For the flocking system the equation is
+batched call of the model's RK4 step.  For the flocking system the equation is
 affine in ``u`` (the held motion is a polynomial of degree two in time, which RK4 integrates
 exactly), so a single Newton step solves it to rounding error.
 
@@ -29,8 +29,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vnhc_gym.mechanics.model import FEEDBACK_MODES, ConstrainedSystem
-from vnhc_gym.mechanics.numerics import FLAG_NONFINITE, FLAG_SINGULAR
+from vnhc_gym.mechanics.model import FLAG_NONFINITE, ConstrainedSystem
 
 __all__ = ["sampled_control"]
 
@@ -98,20 +97,16 @@ def sampled_control(model: ConstrainedSystem, states: ArrayLike, params: ArrayLi
     if not (np.isfinite(fd_step) and fd_step > 0):
         raise ValueError(f"fd_step must be a finite number > 0, got {fd_step}")
     s, single = model._states(states)
-    b, m, dim = s.shape[0], model.m, 2 * model.n
+    b, m = s.shape[0], model.m
     p = model._params(params, b)
     k = model._gains(gains, b)
     model._law_states(s, single)
-    k_ = model.compiled
-    tol = model.singular_tol
 
     # Start: the continuous-time law at the start of the period.
-    u = np.empty((b, m))
-    flags = np.empty(b, dtype=np.int64)
-    k_.law(s, p, k, tol, u, flags)
-    ok = (flags & FLAG_SINGULAR) == 0
-    phi0 = np.empty((b, m))
-    k_.phi(s, p, phi0)
+    u, singular = model.control(s, k, p, on_singular="flag")
+    u = np.array(u)
+    ok = ~np.asarray(singular)
+    phi0 = model.phi(s, p)
     if phi_now is None:
         measured = phi0
     else:
@@ -130,12 +125,7 @@ def sampled_control(model: ConstrainedSystem, states: ArrayLike, params: ArrayLi
     big_p = np.ascontiguousarray(np.repeat(p, w, axis=0))
     big_k = np.zeros((b * w, model.n_gains))
     big_u = np.empty((b * w, m))
-    out = np.empty((b * w, dim))
-    u_out = np.empty((b * w, m))
-    big_flags = np.empty(b * w, dtype=np.int64)
-    big_phi = np.empty((b * w, m))
     lo, hi = np.full(m, -np.inf), np.full(m, np.inf)
-    mode = FEEDBACK_MODES["open"]
     eye = np.eye(m)
 
     active = ok.copy()
@@ -148,8 +138,8 @@ def sampled_control(model: ConstrainedSystem, states: ArrayLike, params: ArrayLi
         cand[:] = u[:, None, :]
         cand[:, 1:1 + m, :] += h[:, None, :] * eye[None]
         cand[:, 1 + m:, :] -= h[:, None, :] * eye[None]
-        k_.rk4(big_s, big_p, big_p, big_u, big_k, mode, lo, hi, float(dt), int(substeps), tol, out, u_out, big_flags)
-        k_.phi(out, big_p, big_phi)
+        out, _, big_flags = model._advance(big_s, big_p, big_u, big_k, float(dt), int(substeps), "open", lo, hi)
+        big_phi = model._run(("phi",), lambda: model.functions.phi, (out, big_p))
         ph = big_phi.reshape(b, w, m)
         bad = ((big_flags.reshape(b, w) & FLAG_NONFINITE) != 0).any(axis=1) | ~np.isfinite(ph).all(axis=(1, 2))
         active &= ~bad

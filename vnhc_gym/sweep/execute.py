@@ -239,7 +239,7 @@ def run_sweep(specs: Iterable[RunSpec], out: str | Path, *, executor: str = "loc
 
 #: Runs that compute on JAX's default device (SBX's SAC, and every run of the compiled backend): the
 #: only ones a GPU can serve.  The SB3 runs train on the CPU (``device="cpu"``) and the classical
-#: baselines are numpy and numba.
+#: baselines run their JAX models on the CPU in float64.
 GPU_ALGOS = ("sac", "residual_sac")
 
 

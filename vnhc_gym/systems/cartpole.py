@@ -77,6 +77,7 @@ from functools import cache
 from typing import TYPE_CHECKING
 
 from vnhc_gym.mechanics import ConstrainedSystem
+from vnhc_gym.systems.printed import printed_module
 
 if TYPE_CHECKING:
     from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint
@@ -122,4 +123,4 @@ def cartpole_system() -> tuple[MechanicalSystem, VelocityConstraint]:
 def make_cartpole() -> ConstrainedSystem:
     """The compiled cart-pole; parameters ``(M_c, m_p, l, g, b_c, lam, mu, nu)``, defaults
     ``(1, 0.2, 0.5, 9.81, 0.1, 2, 0.3, 0.2)``."""
-    return ConstrainedSystem.from_recipe(("cartpole",), cartpole_system, sources=(__file__,))
+    return ConstrainedSystem.from_recipe(("cartpole",), cartpole_system, printed=printed_module("cartpole"))

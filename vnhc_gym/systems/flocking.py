@@ -29,6 +29,7 @@ import numpy as np
 
 from vnhc_gym.mechanics import ConstrainedSystem
 from vnhc_gym.mechanics.fleet import FleetLayout
+from vnhc_gym.systems.printed import printed_module
 
 if TYPE_CHECKING:
     from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint
@@ -81,15 +82,17 @@ def make_flocking(n_agents: int = 4) -> ConstrainedSystem:
 
     A fleet ([`ConstrainedSystem.fleet`][vnhc_gym.mechanics.ConstrainedSystem.fleet]) of
     ``n_agents - 1`` copies of the two-particle system (one follower and the leader, which every
-    copy shares): the unit is compiled once, whatever ``n_agents`` is.  Parameters are
+    copy shares): the unit is derived and printed once, whatever ``n_agents`` is.  Parameters are
     ``(m_1, ..., m_N, g)``, defaults ``m_i = 2``, ``g = 10`` (the paper's); the state is
     ``(x_1..x_N, z_1..z_N, xd_1..xd_N, zd_1..zd_N)``, leader last.
     """
     n = _check_n_agents(n_agents)
     if n > MAX_AGENTS:
         raise ValueError(f"n_agents must be <= {MAX_AGENTS}, got {n}")
-    unit = ConstrainedSystem.from_recipe(("flocking", 2), partial(flocking_system, 2), sources=(__file__,))
-    return ConstrainedSystem.fleet(unit, flocking_layout(n), build=partial(flocking_system, n))
+    unit = ConstrainedSystem.from_recipe(("flocking", 2), partial(flocking_system, 2),
+                                         printed=printed_module("flocking2"))
+    names = tuple(f"{c}_{i}" for c in ("x", "z", "xd", "zd") for i in range(1, n + 1))
+    return ConstrainedSystem.fleet(unit, flocking_layout(n), build=partial(flocking_system, n), state_names=names)
 
 
 def flocking_layout(n_agents: int) -> FleetLayout:

@@ -29,6 +29,7 @@ from functools import cache
 from typing import TYPE_CHECKING
 
 from vnhc_gym.mechanics import ConstrainedSystem
+from vnhc_gym.systems.printed import printed_module
 
 if TYPE_CHECKING:
     from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint
@@ -59,4 +60,4 @@ def sled_system() -> tuple[MechanicalSystem, VelocityConstraint]:
 @cache
 def make_sled() -> ConstrainedSystem:
     """The compiled sled; parameters ``(m, I, a, v_ref)``, defaults ``(20, 2, 0.3, 1.5)``."""
-    return ConstrainedSystem.from_recipe(("sled",), sled_system, sources=(__file__,))
+    return ConstrainedSystem.from_recipe(("sled",), sled_system, printed=printed_module("sled"))

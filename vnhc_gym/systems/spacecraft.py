@@ -66,6 +66,7 @@ from functools import cache
 from typing import TYPE_CHECKING
 
 from vnhc_gym.mechanics import ConstrainedSystem
+from vnhc_gym.systems.printed import printed_module
 
 if TYPE_CHECKING:
     from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint
@@ -106,4 +107,4 @@ def spacecraft_system() -> tuple[MechanicalSystem, VelocityConstraint]:
 def make_spacecraft() -> ConstrainedSystem:
     """The compiled spacecraft; parameters ``(J1, J2, J3, Omega, lam)`` (kg m^2, kg m^2, kg m^2, rad/s,
     1/s), defaults ``(1, 1.5, 2, 1, 1)``."""
-    return ConstrainedSystem.from_recipe(("spacecraft",), spacecraft_system, sources=(__file__,))
+    return ConstrainedSystem.from_recipe(("spacecraft",), spacecraft_system, printed=printed_module("spacecraft"))

@@ -31,8 +31,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from vnhc_gym.mechanics import ConstrainedSystem
-from vnhc_gym.systems import currents
 from vnhc_gym.systems.currents import get_current
+from vnhc_gym.systems.printed import printed_module
 
 if TYPE_CHECKING:
     import sympy as sp
@@ -82,13 +82,13 @@ def make_usv(current: str = "northeast") -> ConstrainedSystem:
     """Compiled USV for a named current (cached per name).
 
     Parameters are ``(m, I, current_scale, c_<current params>...)``; see ``param_names``.
-    Keyed on the recipe ``("usv", current)`` and the text of this file and of the current
-    library: a warm start does not import sympy (see
+    A current with a printed module (`vnhc_gym.systems.printed`) runs it and does not import sympy;
+    another is derived and lambdified on first use (see
     [`ConstrainedSystem.from_recipe`][vnhc_gym.mechanics.ConstrainedSystem.from_recipe]).
     """
     get_current(current)  # validates the name without building anything
     return ConstrainedSystem.from_recipe(("usv", current), partial(usv_system, current),
-                                         sources=(__file__, currents.__file__))
+                                         printed=printed_module(f"usv_{current}"))
 
 
 @dataclass(frozen=True)

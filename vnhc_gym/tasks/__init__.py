@@ -20,7 +20,7 @@ __all__ = ["TASKS", "Task", "TaskEntry", "VERSIONS", "env_id", "env_ids", "get_t
            "shipped_tasks", "task_of_env_id"]
 
 
-def __getattr__(name: str) -> Any:  # Task imports numba: only when a task author asks for it
+def __getattr__(name: str) -> Any:  # Task imports JAX: only when a task author asks for it
     if name == "Task":
         from vnhc_gym.tasks.base import Task
 

@@ -34,8 +34,6 @@ from numpy.typing import NDArray
 
 from vnhc_gym.envs.config import EnvConfig, TaskOptions
 from vnhc_gym.mechanics import ConstrainedSystem
-from vnhc_gym.mechanics.lambdified import LambdifiedSystem
-from vnhc_gym.systems.printed import printed_for
 
 __all__ = ["Task"]
 
@@ -43,20 +41,6 @@ Array = NDArray[np.float64]
 
 #: The compiled, batched observation of `Task.observation_of`, by task class and printed system.
 _OBSERVATIONS: dict[tuple[type, Any], Any] = {}
-#: Lambdified systems, by the model's key (one per system and process: the compiled programs key on it).
-_LAMBDIFIED: dict[str, LambdifiedSystem] = {}
-
-
-def _jax_system_of(model: ConstrainedSystem) -> Any:
-    """``model``'s printed module, else its law lambdified (once per system)."""
-    printed = printed_for(model)
-    if printed is not None:
-        return printed
-    system = _LAMBDIFIED.get(model._key)
-    if system is None:
-        system = _LAMBDIFIED[model._key] = LambdifiedSystem(model.symbolic, model._outputs)
-    return system
-
 
 class Task:
     """A virtual-constraint task configured for one environment (subclass once per task).
@@ -288,7 +272,7 @@ class Task:
         """The environment's system as pure JAX functions: its printed module
         (`vnhc_gym.systems.printed`), or for a system the package does not ship (a user's), its law
         lambdified on first use ([`LambdifiedSystem`][vnhc_gym.mechanics.lambdified.LambdifiedSystem])."""
-        return _jax_system_of(self.model)
+        return self.model.functions
 
     # ------------------------------------------------------------------ what a controller reads
     def controller_model(self) -> ConstrainedSystem:
@@ -313,7 +297,7 @@ class Task:
         the state back from the observation; the observation's clipping is left out.
         """
         model = self.controller_model()
-        system = self.jax_system() if model is self.model else _jax_system_of(model)
+        system = self.jax_system() if model is self.model else model.functions
         fn = _OBSERVATIONS.get((type(self), system))
         if fn is None:
             observation = sys.modules[type(self).__module__].observation

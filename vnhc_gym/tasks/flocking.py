@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache
 from typing import Any, NamedTuple
 
 import jax
@@ -136,20 +135,6 @@ def scale_free(s: jax.Array, phi: jax.Array, args: Args) -> jax.Array:
     return phi / PHI_SF_SCALE / _leader_speed(s)
 
 
-@cache
-def flock_jax_system(n_agents: int) -> Any:
-    """The printed system of ``n_agents`` particles as a fleet of the printed two-particle unit (one
-    follower and the leader, ``flocking2``) run on every follower by ``jax.vmap``, in the numba
-    fleet's layout: no derivation or code grows with ``n_agents`` (cached: one object per size, so
-    that compiled functions keyed on it are reused)."""
-    from vnhc_gym.mechanics.functional_fleet import FleetSystem
-    from vnhc_gym.systems.flocking import flocking_layout
-    from vnhc_gym.systems.printed import load
-
-    names = tuple(f"{c}_{i}" for c in ("x", "z", "xd", "zd") for i in range(1, n_agents + 1))
-    return FleetSystem(load("flocking2"), flocking_layout(n_agents), state_names=names)
-
-
 @dataclass(frozen=True)
 class FlockingOptions(TaskOptions):
     """The flock's own keyword arguments."""
@@ -206,12 +191,6 @@ class FlockingTask(Task):
             n_agents=n_agents,
             preset_state=FLOCKING_PRESETS[preset].state() if preset is not None else np.zeros(4 * n_agents),
             use_preset=preset is not None)
-
-    def jax_system(self) -> Any:
-        """The flock's printed JAX system for any ``n_agents``: the two-particle unit ``flocking2`` on
-        every follower by ``jax.vmap`` (`flock_jax_system`), in the numba model's state and parameter
-        order."""
-        return flock_jax_system(self.n_agents)
 
     def scene(self, state: Array, phi: Array, params: Array) -> Scene:
         """The particles in their plane, the leader red, each follower with a guide along the leader's

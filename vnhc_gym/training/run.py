@@ -22,12 +22,11 @@ residual wrapper, its mean head zeroed and its log-std head constant at the file
 callbacks (`vnhc_gym.training.callbacks`).  Validation episodes use seeds from 5 000, test episodes
 from 10 000; training episodes use small seeds, so the three never overlap.
 
-Threads: the environment kernels run on one thread (numba, no thread pool); torch gets ``threads``
-threads, 1 by default.  A second thread makes one run alone on an idle two-core machine up to about
-1.4x faster, but when another job shares the cores torch's spinning threads fight for them: two
-runs started together with two threads each took 4x the time of one run, and many times longer
-under heavier load, against 1.1x with one thread each (``experiments/bench_train.py`` measures both
-cases).
+Threads: torch gets ``threads`` threads, 1 by default.  A second thread makes one run alone on an
+idle two-core machine up to about 1.4x faster, but when another job shares the cores torch's
+spinning threads fight for them: two runs started together with two threads each took 4x the time
+of one run, and many times longer under heavier load, against 1.1x with one thread each
+(``experiments/bench_train.py`` measures both cases).
 """
 
 from __future__ import annotations

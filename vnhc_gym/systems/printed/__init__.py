@@ -14,7 +14,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-__all__ = ["SOURCES", "load", "printed_for", "text"]
+__all__ = ["SOURCES", "load", "printed_module", "text"]
 
 FOLDER = Path(__file__).parent
 
@@ -61,12 +61,7 @@ def load(name: str) -> ModuleType:
     return importlib.import_module(f"{__name__}.{name}")
 
 
-def printed_for(model: Any) -> ModuleType | None:
-    """The printed module of a compiled system (by its recipe: ``("usv", "affine")`` ->
-    ``usv_affine``; a fleet by the system it stands for, ``("fleet", "flocking4", 3)`` ->
-    ``flocking4``), or None if it has none (a user's system, a flock of another size)."""
-    recipe = getattr(model, "recipe", None)
-    if recipe and recipe[0] == "fleet":
-        recipe = recipe[1:2]
-    name = "_".join(str(part) for part in recipe) if recipe else None
-    return load(name) if name in SOURCES else None
+def printed_module(name: str) -> str | None:
+    """The import path of the printed module ``name`` (``"usv_affine"``), or None if ``SOURCES`` has
+    no such module (a user's current, a flock of another size)."""
+    return f"{__name__}.{name}" if name in SOURCES else None

@@ -6,11 +6,13 @@ Every function takes one state ``s`` (``q`` then ``qd``) and one parameter vecto
 
 import jax.numpy as jnp
 
+NAME = 'cartpole'
 N = 2
 M = 1
 STATE_NAMES = ('x', 'theta', 'xd', 'thetad')
 PARAM_NAMES = ('M_c', 'm_p', 'l', 'g', 'b_c', 'lam', 'mu', 'nu')
 PARAM_DEFAULTS = (1.0, 0.2, 0.5, 9.81, 0.1, 2.0, 0.3, 0.2)
+PARAM_POSITIVE = (True, True, True, True, False, True, False, False)
 OUTPUT_NAMES = ()
 HOLONOMIC = False
 
@@ -84,6 +86,19 @@ def drift_term(s, p):
     _c4 = b_c*xd
     _c5 = _c1*l*m_p*thetad**2
     return jnp.reshape(jnp.stack([_c0*lam*thetad - 1/2*_c3*mu*(_c2*g*jnp.sin(2*theta) + 8*_c4 - 8*_c5) + 3*_c3*(_c0*(_c4 - _c5) + _c1*g*(M_c + m_p))/l + nu*xd]), (1,))
+
+
+def singular_sizes(s, p):
+    """Squared sizes ``|J_b|^2`` then ``|Y^a|^2`` of the factors of ``C = J Y`` (the law's singular test), shape ``(2 m,)``."""
+    theta = s[1]
+    M_c = p[0]
+    m_p = p[1]
+    l = p[2]
+    mu = p[6]
+    _c0 = l**2
+    _c1 = 3*m_p
+    _c2 = (4*M_c + _c1*jnp.sin(theta)**2 + m_p)**(-1.0)
+    return jnp.reshape(jnp.stack([_c2*(3*M_c + 4*_c0*m_p*mu**2 + _c1 - 6*l*m_p*mu*jnp.cos(theta))/(_c0*m_p), 4*_c2]), (2,))
 
 
 def energy(s, p):

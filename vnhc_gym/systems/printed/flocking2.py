@@ -6,11 +6,13 @@ Every function takes one state ``s`` (``q`` then ``qd``) and one parameter vecto
 
 import jax.numpy as jnp
 
+NAME = 'flocking2'
 N = 4
 M = 1
 STATE_NAMES = ('x_1', 'x_2', 'z_1', 'z_2', 'xd_1', 'xd_2', 'zd_1', 'zd_2')
 PARAM_NAMES = ('m_1', 'm_2', 'g')
 PARAM_DEFAULTS = (2.0, 2.0, 10.0)
+PARAM_POSITIVE = (True, True, True)
 OUTPUT_NAMES = ()
 HOLONOMIC = False
 
@@ -52,6 +54,18 @@ def drift_term(s, p):
     xd_2 = s[5]
     g = p[2]
     return jnp.reshape(jnp.stack([g*(xd_1 - xd_2)]), (1,))
+
+
+def singular_sizes(s, p):
+    """Squared sizes ``|J_b|^2`` then ``|Y^a|^2`` of the factors of ``C = J Y`` (the law's singular test), shape ``(2 m,)``."""
+    xd_1 = s[4]
+    xd_2 = s[5]
+    zd_1 = s[6]
+    zd_2 = s[7]
+    m_1 = p[0]
+    m_2 = p[1]
+    _c0 = m_1**(-1.0)
+    return jnp.reshape(jnp.stack([_c0*(m_1*(xd_1**2 + zd_1**2) + m_2*(xd_2**2 + zd_2**2))/m_2, 2*_c0]), (2,))
 
 
 def energy(s, p):

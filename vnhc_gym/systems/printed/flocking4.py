@@ -6,11 +6,13 @@ Every function takes one state ``s`` (``q`` then ``qd``) and one parameter vecto
 
 import jax.numpy as jnp
 
+NAME = 'flocking4'
 N = 8
 M = 3
 STATE_NAMES = ('x_1', 'x_2', 'x_3', 'x_4', 'z_1', 'z_2', 'z_3', 'z_4', 'xd_1', 'xd_2', 'xd_3', 'xd_4', 'zd_1', 'zd_2', 'zd_3', 'zd_4')
 PARAM_NAMES = ('m_1', 'm_2', 'm_3', 'm_4', 'g')
 PARAM_DEFAULTS = (2.0, 2.0, 2.0, 2.0, 10.0)
+PARAM_POSITIVE = (True, True, True, True, True)
 OUTPUT_NAMES = ()
 HOLONOMIC = False
 
@@ -66,6 +68,28 @@ def drift_term(s, p):
     g = p[4]
     _c0 = -xd_4
     return jnp.reshape(jnp.stack([g*(_c0 + xd_1), g*(_c0 + xd_2), g*(_c0 + xd_3)]), (3,))
+
+
+def singular_sizes(s, p):
+    """Squared sizes ``|J_b|^2`` then ``|Y^a|^2`` of the factors of ``C = J Y`` (the law's singular test), shape ``(2 m,)``."""
+    xd_1 = s[8]
+    xd_2 = s[9]
+    xd_3 = s[10]
+    xd_4 = s[11]
+    zd_1 = s[12]
+    zd_2 = s[13]
+    zd_3 = s[14]
+    zd_4 = s[15]
+    m_1 = p[0]
+    m_2 = p[1]
+    m_3 = p[2]
+    m_4 = p[3]
+    _c0 = m_1**(-1.0)
+    _c1 = m_4**(-1.0)
+    _c2 = m_4*(xd_4**2 + zd_4**2)
+    _c3 = m_2**(-1.0)
+    _c4 = m_3**(-1.0)
+    return jnp.reshape(jnp.stack([_c0*_c1*(_c2 + m_1*(xd_1**2 + zd_1**2)), _c1*_c3*(_c2 + m_2*(xd_2**2 + zd_2**2)), _c1*_c4*(_c2 + m_3*(xd_3**2 + zd_3**2)), 2*_c0, 2*_c3, 2*_c4]), (6,))
 
 
 def energy(s, p):

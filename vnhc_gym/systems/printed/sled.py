@@ -6,11 +6,13 @@ Every function takes one state ``s`` (``q`` then ``qd``) and one parameter vecto
 
 import jax.numpy as jnp
 
+NAME = 'sled'
 N = 3
 M = 2
 STATE_NAMES = ('x', 'y', 'theta', 'xd', 'yd', 'thetad')
 PARAM_NAMES = ('m', 'I', 'a', 'v_ref')
 PARAM_DEFAULTS = (20.0, 2.0, 0.3, 1.5)
+PARAM_POSITIVE = (True, True, True, True)
 OUTPUT_NAMES = ()
 HOLONOMIC = False
 
@@ -70,6 +72,16 @@ def drift_term(s, p):
     _c1 = jnp.sin(theta)
     _c2 = a*thetad
     return jnp.reshape(jnp.stack([-thetad*(_c0*xd + _c1*yd), thetad*(_c0**2*_c2 + _c0*yd + _c1**2*_c2 - _c1*xd)]), (2,))
+
+
+def singular_sizes(s, p):
+    """Squared sizes ``|J_b|^2`` then ``|Y^a|^2`` of the factors of ``C = J Y`` (the law's singular test), shape ``(2 m,)``."""
+    m = p[0]
+    I = p[1]
+    a = p[2]
+    _c0 = m**(-1.0)
+    _c1 = I**(-1.0)
+    return jnp.reshape(jnp.stack([_c0 + _c1*a**2, _c0, _c0, _c1]), (4,))
 
 
 def energy(s, p):

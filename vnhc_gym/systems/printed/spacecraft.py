@@ -6,11 +6,13 @@ Every function takes one state ``s`` (``q`` then ``qd``) and one parameter vecto
 
 import jax.numpy as jnp
 
+NAME = 'spacecraft'
 N = 3
 M = 3
 STATE_NAMES = ('psi', 'theta', 'varphi', 'psid', 'thetad', 'varphid')
 PARAM_NAMES = ('J1', 'J2', 'J3', 'Omega', 'lam')
 PARAM_DEFAULTS = (1.0, 1.5, 2.0, 1.0, 1.0)
+PARAM_POSITIVE = (True, True, True, False, True)
 OUTPUT_NAMES = ()
 HOLONOMIC = False
 
@@ -222,6 +224,17 @@ def drift_term(s, p):
     _c69 = _c36*_c53 + 2*_c55*(_c30 + _c39*(_c19*_c38 + _c37) + thetad*(-_c14*_c31 + _c14*_c34)) + 2*_c65*_c68
     _c70 = _c0*thetad
     return jnp.reshape(jnp.stack([_c0*_c2*varphid - _c5*_c57*_c61 - thetad*(_c3 + _c6*lam) + _c61*(J1*_c40*_c5 + J1*_c53*_c65 + 2*_c22*(J2*_c64 + _c25*_c64 - _c35*_c64 - _c62*_c63 + _c62))/J1, -_c0*_c67*_c69 + _c4*_c57*_c67 + thetad*(_c2 - _c6*psid) + varphid*(_c0*_c3 - _c4*thetad), (1/8)*_c0*_c58*_c59*_c66*(_c27*_c68 + _c56) + (1/8)*_c4*_c58*_c59*_c66*_c69 - _c5*_c70*psid - varphid*(_c3*_c4 + _c70)]), (3,))
+
+
+def singular_sizes(s, p):
+    """Squared sizes ``|J_b|^2`` then ``|Y^a|^2`` of the factors of ``C = J Y`` (the law's singular test), shape ``(2 m,)``."""
+    J1 = p[0]
+    J2 = p[1]
+    J3 = p[2]
+    _c0 = J1**(-1.0)
+    _c1 = J2**(-1.0)
+    _c2 = J3**(-1.0)
+    return jnp.reshape(jnp.stack([_c0, _c1, _c2, _c0, _c1, _c2]), (6,))
 
 
 def energy(s, p):

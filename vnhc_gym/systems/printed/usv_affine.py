@@ -6,11 +6,13 @@ Every function takes one state ``s`` (``q`` then ``qd``) and one parameter vecto
 
 import jax.numpy as jnp
 
+NAME = 'usv_affine'
 N = 3
 M = 1
 STATE_NAMES = ('x', 'y', 'theta', 'xd', 'yd', 'thetad')
 PARAM_NAMES = ('m', 'I', 'current_scale', 'c_c1', 'c_c2', 'c_j11', 'c_j12', 'c_j21', 'c_j22')
 PARAM_DEFAULTS = (10.0, 1.5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+PARAM_POSITIVE = (True, True, True, False, False, False, False, False, False)
 OUTPUT_NAMES = ('C1', 'C2', 'dC1dx', 'dC1dy', 'dC2dx', 'dC2dy')
 HOLONOMIC = False
 
@@ -106,6 +108,14 @@ def drift_term(s, p):
     _c11 = _c0**2
     _c12 = 2*_c0*_c1
     return jnp.reshape(jnp.stack([_c0*current_scale*(_c0*_c3 + _c4*_c7 + thetad*(-_c10*_c9 + _c11*_c9 + _c12*_c8)) + _c1*current_scale*(_c1*_c5 + _c2*_c6 + thetad*(_c10*_c8 - _c11*_c8 + _c12*_c9)) - _c3*current_scale - _c5*current_scale - thetad*(_c0*_c9*current_scale + _c1*_c8*current_scale - _c6 - _c7)]), (1,))
+
+
+def singular_sizes(s, p):
+    """Squared sizes ``|J_b|^2`` then ``|Y^a|^2`` of the factors of ``C = J Y`` (the law's singular test), shape ``(2 m,)``."""
+    m = p[0]
+    I = p[1]
+    _c0 = m**(-1.0)
+    return jnp.reshape(jnp.stack([_c0, _c0*(I + m)/I]), (2,))
 
 
 def energy(s, p):

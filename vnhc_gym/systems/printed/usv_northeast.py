@@ -6,11 +6,13 @@ Every function takes one state ``s`` (``q`` then ``qd``) and one parameter vecto
 
 import jax.numpy as jnp
 
+NAME = 'usv_northeast'
 N = 3
 M = 1
 STATE_NAMES = ('x', 'y', 'theta', 'xd', 'yd', 'thetad')
 PARAM_NAMES = ('m', 'I', 'current_scale', 'c_c1', 'c_c2')
 PARAM_DEFAULTS = (10.0, 1.5, 1.0, 1.0, 1.0)
+PARAM_POSITIVE = (True, True, True, False, False)
 OUTPUT_NAMES = ('C1', 'C2', 'dC1dx', 'dC1dy', 'dC2dx', 'dC2dy')
 HOLONOMIC = False
 
@@ -77,6 +79,14 @@ def drift_term(s, p):
     _c5 = _c1**2
     _c6 = 2*_c0*_c1
     return jnp.reshape(jnp.stack([thetad*(_c0*xd + _c1*yd - _c2*c_c1 + _c2*(_c4*c_c1 - _c5*c_c1 + _c6*c_c2) - _c3*c_c2 + _c3*(-_c4*c_c2 + _c5*c_c2 + _c6*c_c1))]), (1,))
+
+
+def singular_sizes(s, p):
+    """Squared sizes ``|J_b|^2`` then ``|Y^a|^2`` of the factors of ``C = J Y`` (the law's singular test), shape ``(2 m,)``."""
+    m = p[0]
+    I = p[1]
+    _c0 = m**(-1.0)
+    return jnp.reshape(jnp.stack([_c0, _c0*(I + m)/I]), (2,))
 
 
 def energy(s, p):

@@ -6,11 +6,13 @@ Every function takes one state ``s`` (``q`` then ``qd``) and one parameter vecto
 
 import jax.numpy as jnp
 
+NAME = 'usv_random'
 N = 3
 M = 1
 STATE_NAMES = ('x', 'y', 'theta', 'xd', 'yd', 'thetad')
 PARAM_NAMES = ('m', 'I', 'current_scale', 'c_a_0_1', 'c_b_0_1', 'c_a_0_2', 'c_b_0_2', 'c_a_0_3', 'c_b_0_3', 'c_a_1_m2', 'c_b_1_m2', 'c_a_1_m1', 'c_b_1_m1', 'c_a_1_0', 'c_b_1_0', 'c_a_1_1', 'c_b_1_1', 'c_a_1_2', 'c_b_1_2', 'c_a_2_m2', 'c_b_2_m2', 'c_a_2_m1', 'c_b_2_m1', 'c_a_2_0', 'c_b_2_0', 'c_a_2_1', 'c_b_2_1', 'c_a_2_2', 'c_b_2_2', 'c_a_3_0', 'c_b_3_0')
 PARAM_DEFAULTS = (10.0, 1.5, 1.0, 0.07673458684583885, -0.08062510362925576, 0.2611032634170841, 0.04276826077674596, -0.07663372916274512, 0.05173037491577304, 0.43780135914273444, 0.3179703362930577, -0.3977815675691845, -0.7152709012945527, -0.3803915077731389, 0.02522171617637471, -1.3142078712626557, -0.12367050365235309, -0.41829868650331786, -0.2458494110811413, -0.097076528862134, -0.0564167468539841, 0.13819969482536576, 0.35001054775341395, -0.052404173921194806, 0.5571134488353889, -0.22333061508282634, 0.11801501619098773, 0.1611470860889646, 0.01676846469132466, -0.10636620826658182, -0.1318635269919985)
+PARAM_POSITIVE = (True, True, True, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False, False)
 OUTPUT_NAMES = ('C1', 'C2', 'dC1dx', 'dC1dy', 'dC2dx', 'dC2dy')
 HOLONOMIC = False
 
@@ -404,6 +406,14 @@ def drift_term(s, p):
     _c107 = _c0**2
     _c108 = 2*_c48
     return jnp.reshape(jnp.stack([(1/64)*jnp.pi*_c0*current_scale*(-jnp.pi*_c0*xd*(_c0*_c47 + _c48*(_c3*(-_c20*_c6 - _c22*_c49 + _c50 + _c54) + _c59*_c75 + _c64*(-_c28*_c6 - _c30*_c49 + _c60 + _c62) + _c69)) - jnp.pi*_c73*(-_c0*(4*_c10*c_a_0_2 + _c100*_c6*c_b_0_3 - _c101*_c3 - _c102*_c18 - _c103*_c89 - _c104*_c90 + _c86*_c99 - _c94 - _c95 - _c96 - _c98) + _c47*_c48) + 8*thetad*(_c0*_c108*(2*_c12*c_b_0_2 - _c16*_c18 - _c25*_c3 - _c33*_c90 - _c43*_c89 - _c78 - _c79 + _c8*c_b_0_1 - _c80 - _c82*_c84 - _c86*_c88) + _c106*_c76 - _c107*_c76)) + (1/64)*_c105*_c71*current_scale*yd - 1/64*_c70*_c71*current_scale*xd - 1/64*_c92*(jnp.pi*_c105*_c48*yd - jnp.pi*_c70*_c72 - _c93*(_c106*_c91 - _c107*_c91 + _c108*_c77)) - 1/64*_c93*(-8*_c72 - 8*_c73 + _c74*_c77 + _c91*_c92)]), (1,))
+
+
+def singular_sizes(s, p):
+    """Squared sizes ``|J_b|^2`` then ``|Y^a|^2`` of the factors of ``C = J Y`` (the law's singular test), shape ``(2 m,)``."""
+    m = p[0]
+    I = p[1]
+    _c0 = m**(-1.0)
+    return jnp.reshape(jnp.stack([_c0, _c0*(I + m)/I]), (2,))
 
 
 def energy(s, p):
