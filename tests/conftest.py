@@ -14,6 +14,17 @@ import os
 # Rendering must work headless; SDL reads these when pygame first initialises a display or audio.
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+# One JAX compilation cache for the whole run, shared by the xdist workers and the subprocesses the
+# tests start (JAX reads these variables at import): the tests compile the same programs in many
+# processes, and a cache that starts empty with the run cut the environment tests' time from 478 s
+# to 179 s.  The package itself never sets it (importing vnhc_gym leaves JAX's settings alone).
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+    import tempfile as _tempfile
+
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = _OWN_JAX_CACHE = _tempfile.mkdtemp(prefix="vnhc_gym_test_jax_cache_")
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+else:
+    _OWN_JAX_CACHE = None
 
 import re  # noqa: E402
 import sys  # noqa: E402
@@ -47,6 +58,15 @@ def _register_tutorial_task() -> None:
 
 
 _register_tutorial_task()
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    """The run's compilation cache goes with the run (removed by the process that made it; the xdist
+    workers inherit its path and leave it)."""
+    if _OWN_JAX_CACHE is not None and not hasattr(config, "workerinput"):
+        import shutil
+
+        shutil.rmtree(_OWN_JAX_CACHE, ignore_errors=True)
 
 
 def short_id(env_id: str) -> str:

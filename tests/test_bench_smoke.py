@@ -78,7 +78,7 @@ def test_bench_envs_quick_measures_every_env(tmp_path: Path) -> None:
     assert set(res["single_us"]) == {"Pendulum-v1", *env_ids("v1", shipped_only=True)}
     assert all(v > 0 for v in res["single_us"].values())
     shipped = env_ids("v1", shipped_only=True)
-    assert {(r["env"], r["n"]) for r in res["vector"]} == {(e, n) for e in shipped for n in (16, 256)}
+    assert {(r["env"], r["n"]) for r in res["vector"]} == {(e, 8) for e in shipped}
     assert all(r["native"] > 0 and r["sync"] > 0 and r["cartpole"] > 0 for r in res["vector"])
     assert (out / "bench_envs.md").read_text() in proc.stdout
 

@@ -189,3 +189,31 @@ def test_a_task_in_a_file_of_its_own_through_every_command(tmp_path: Path) -> No
     assert proc.returncode == 0, proc.stderr[-3000:]
     (record,) = (tmp_path / "sweep" / "runs").glob("puck-nominal-law-*.json")
     assert json.loads(record.read_text())["env_id"] == env
+
+
+def test_the_command_keeps_compiled_programs_on_disk_and_the_package_does_not(tmp_path: Path) -> None:
+    """``vnhc-gym`` fills JAX's compilation cache under ``$XDG_CACHE_HOME``, and a second run finds
+    what the first compiled; importing the package sets no cache folder; ``off`` turns it off."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_") and k != "VNHC_GYM_JAX_CACHE"}
+    # One hash seed for both runs: the systems sympy lambdifies at run time print their terms in the
+    # order of Python's string hashing, which differs between processes, and with it their programs.
+    env.update(XDG_CACHE_HOME=str(tmp_path / "xdg"), PYTHONHASHSEED="0")
+    folder = tmp_path / "xdg" / "vnhc_gym" / "jax"
+
+    def reproduce(out: str, **extra: str) -> None:
+        proc = subprocess.run([*_command(), "reproduce", "--quick", "--out", str(tmp_path / out)], capture_output=True,
+                              text=True, timeout=600, env={**env, **extra})
+        assert proc.returncode == 0, proc.stderr[-3000:]
+
+    reproduce("first")
+    entries = {p.name for p in folder.iterdir()}
+    assert entries  # compiled programs were written
+    reproduce("second")
+    assert {p.name for p in folder.iterdir()} == entries  # the second run compiled nothing new
+    reproduce("off", VNHC_GYM_JAX_CACHE="off", XDG_CACHE_HOME=str(tmp_path / "other"))
+    assert not (tmp_path / "other" / "vnhc_gym").exists()  # (matplotlib keeps its own cache there)
+    code = "import jax, vnhc_gym; print(jax.config.jax_compilation_cache_dir)"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0 and proc.stdout.strip() == "None", proc.stderr

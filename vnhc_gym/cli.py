@@ -46,6 +46,42 @@ def import_gym_packages(names: Sequence[str]) -> None:
                              f"(PYTHONPATH, or the current directory)?") from None
 
 
+def use_compilation_cache() -> str | None:
+    """Keep JAX's compiled programs on disk for the next ``vnhc-gym`` command (JAX's persistent
+    compilation cache: compiled XLA programs, never Python code), so a command run again skips the
+    compilations of the last one.
+
+    Only the console command does this: it is a global JAX setting, which importing the package never
+    changes.  The folder is ``$VNHC_GYM_JAX_CACHE``, else ``$XDG_CACHE_HOME/vnhc_gym/jax`` (or
+    ``~/.cache/vnhc_gym/jax``); ``VNHC_GYM_JAX_CACHE=off`` turns it off, and a cache folder the user
+    already gave JAX (``JAX_COMPILATION_CACHE_DIR``) is kept.
+
+    Returns
+    -------
+    str or None
+        The folder in use, or None when off.
+    """
+    import jax
+
+    chosen = os.environ.get("VNHC_GYM_JAX_CACHE", "")
+    if chosen.lower() == "off":
+        return None
+    given = getattr(jax.config, "jax_compilation_cache_dir", None)
+    if given:
+        return str(given)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    folder = chosen or os.path.join(base, "vnhc_gym", "jax")
+    jax.config.update("jax_compilation_cache_dir", folder)
+    # JAX caches only compilations above one second by default; most of the environments' and the
+    # baselines' programs compile in less, and together they are most of a short command's time.
+    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    # The processes the command starts (the sweep's workers) read the same folder.
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = folder
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    return folder
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``vnhc-gym`` console script.
 
@@ -76,6 +112,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             module.add_arguments(p)
             p.set_defaults(_run=module.run)
     args = parser.parse_args(args_in)
+    use_compilation_cache()
     try:
         return int(args._run(args) or 0)
     except ValueError as exc:  # a value argparse accepted but the command cannot use: a usage error

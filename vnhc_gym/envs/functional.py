@@ -45,7 +45,7 @@ Array = Any  # a jax.Array
 
 #: The reward shapes of ``EnvConfig.reward`` (see `vnhc_gym.envs.config.REWARDS`).
 REWARD_SHAPES = ("raw", "bounded", "reciprocal")
-FEEDBACK = ("open", "continuous", "sampled")
+FEEDBACK = core.FEEDBACK_MODES
 
 
 @dataclass(frozen=True, eq=False)

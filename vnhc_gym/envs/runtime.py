@@ -128,9 +128,26 @@ def _program(env: FunctionalEnv, params: EnvParams, widths: dict[str, int]) -> _
 
     @jax.jit
     def reset(mem: jax.Array, keys: jax.Array, mask: jax.Array, flat: jax.Array) -> tuple[jax.Array, jax.Array]:
+        # Only the rows of the mask draw a start: a vector environment resets the few rows that ended
+        # on most steps, and a start for every row cost as much as the step.  They are gathered in
+        # chunks of an eighth of the batch (a multiple of _LANES rows, so that each row is computed
+        # by the same vector code whatever the batch: the bits do not depend on the batch size).
         p = unravel(flat)
-        rows, new_keys = jax.vmap(reset_row, in_axes=(0, None))(keys, p)
-        return jnp.where(mask[:, None], rows, mem), jnp.where(mask[:, None], new_keys, keys)
+        n = mask.shape[0]
+        chunk = _LANES * max(1, -(-n // (8 * _LANES)))
+        chunks = -(-n // chunk)
+        idx = jnp.nonzero(mask, size=chunks * chunk, fill_value=n)[0]  # index n: padding, dropped
+        count = jnp.sum(mask, dtype=jnp.int32)
+
+        def draw(carry: tuple[jax.Array, jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array, jax.Array]:
+            c, mem, out_keys = carry
+            rows = jax.lax.dynamic_slice_in_dim(idx, c * chunk, chunk)
+            new, new_keys = jax.vmap(reset_row, in_axes=(0, None))(keys[jnp.minimum(rows, n - 1)], p)
+            return c + 1, mem.at[rows].set(new, mode="drop"), out_keys.at[rows].set(new_keys, mode="drop")
+
+        _, mem, keys = jax.lax.while_loop(lambda carry: carry[0] * chunk < count, draw,
+                                          (jnp.zeros((), jnp.int32), mem, keys))
+        return mem, keys
 
     @jax.jit
     def step(mem: jax.Array, keys: jax.Array, actions: jax.Array, mask: jax.Array, flat: jax.Array

@@ -12,9 +12,9 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 from vnhc_gym.mechanics.fleet import FleetLayout
+from vnhc_gym.mechanics.functional import FEEDBACK_MODES
 from vnhc_gym.mechanics.integrate import Trajectory, simulate
 from vnhc_gym.mechanics.model import (
-    FEEDBACK_MODES,
     FLAG_NONFINITE,
     FLAG_SINGULAR,
     ConstrainedSystem,

@@ -18,8 +18,11 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-__all__ = ["acceleration", "checked_law", "law", "measure", "rk4_step", "rk4_step_controlled", "sampled_law",
-           "transversality", "vector_field"]
+__all__ = ["FEEDBACK_MODES", "acceleration", "checked_law", "law", "measure", "rk4_step", "rk4_step_controlled",
+           "sampled_law", "transversality", "vector_field"]
+
+#: How the law enters a step (`rk4_step_controlled`): not at all, held over the period, or at every stage.
+FEEDBACK_MODES = ("open", "continuous", "sampled")
 
 Array = Any  # a jax.Array (or anything jax.numpy accepts)
 
@@ -137,7 +140,7 @@ def rk4_step_controlled(system: ModuleType, s: Array, p: Array, u: Array, dt: fl
         held = jnp.clip(u + u_law, lower, upper)
         return rk4_step(system, s, p, held, dt, substeps), held, singular
     if feedback != "continuous":
-        raise ValueError(f"feedback must be 'open', 'sampled' or 'continuous', got {feedback!r}")
+        raise ValueError(f"feedback must be one of {list(FEEDBACK_MODES)}, got {feedback!r}")
     h = dt / substeps
 
     def control(x: Array) -> tuple[Array, Array]:

@@ -29,12 +29,9 @@ if TYPE_CHECKING:  # the symbolic layer (sympy) is imported only when a model ne
     from vnhc_gym.mechanics.fleet import FleetLayout
     from vnhc_gym.mechanics.system import MechanicalSystem
 
-__all__ = ["ConstrainedSystem", "SingularControlError", "Feedback", "FLAG_SINGULAR", "FLAG_NONFINITE",
-           "FEEDBACK_MODES"]
+__all__ = ["ConstrainedSystem", "SingularControlError", "Feedback", "FLAG_SINGULAR", "FLAG_NONFINITE"]
 
 Feedback = Literal["open", "continuous", "sampled"]
-#: The feedback modes of `ConstrainedSystem.step` (codes kept for callers that index by them).
-FEEDBACK_MODES: dict[str, int] = {"open": 0, "continuous": 1, "sampled": 2}
 
 # Bits of the per-row status flag of `ConstrainedSystem.step`.
 FLAG_SINGULAR = 1  #: the input fields were (nearly) tangent to the constraint at some evaluation (u* set to 0).
@@ -568,8 +565,8 @@ class ConstrainedSystem:
             in the loop (``continuous``, ``sampled``), a state is not finite; the message names the
             row and the entry.  In the ``open`` mode a non-finite state is integrated and flagged.
         """
-        if feedback not in FEEDBACK_MODES:
-            raise ValueError(f"feedback must be one of {sorted(FEEDBACK_MODES)}, got {feedback!r}")
+        if feedback not in F.FEEDBACK_MODES:
+            raise ValueError(f"feedback must be one of {sorted(F.FEEDBACK_MODES)}, got {feedback!r}")
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be a finite number > 0, got {dt}")
         if int(substeps) != substeps or substeps < 1:
