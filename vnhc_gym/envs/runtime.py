@@ -44,8 +44,8 @@ _FIELDS = (("state", "n2"), ("params_true", "P"), ("params_nominal", "P"), ("obs
 
 
 class Buffers(NamedTuple):
-    """The arrays of ``B`` episodes (row ``r`` is episode ``r``): read-only views of the batch's
-    memory, kept current by every call (`Batch.write` changes a state or parameters)."""
+    """The arrays of ``B`` episodes (row ``r`` is episode ``r``): views of the batch's memory, kept
+    current by every call."""
 
     state: NDArray[np.float64]  #: (B, 2n) the state (q, qd): the last finite one
     next_state: NDArray[np.float64]  #: (B, 2n) the state RK4 reached (not finite at a non-finite end)
