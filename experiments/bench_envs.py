@@ -2,13 +2,12 @@
 environments against SyncVectorEnv and Gymnasium's native CartPoleVectorEnv.  Writes
 results/bench_envs.md and .json.
 
-    python experiments/bench_envs.py            # about 8 minutes
+    python experiments/bench_envs.py            # about 2 minutes
     python experiments/bench_envs.py --quick    # a smoke run
 
 Vector throughput counts every sub-environment step of uniform random actions over repeated
-episodes (resets included), the best of three stretches of steps.  Gymnasium's environments run on
-one thread; XLA runs the compiled step with the threads it chooses (up to about 1.6 cores busy here
-at large N).
+episodes (resets included).  Gymnasium's environments run on one thread; XLA runs the compiled step
+with the threads it chooses (up to about 1.6 cores busy here at large N).
 """
 
 from __future__ import annotations
@@ -48,14 +47,10 @@ def vector_rate(venv: gym.vector.VectorEnv, steps: int) -> float:
         else [rng.uniform(-1, 1, venv.action_space.shape).astype(np.float32) for _ in range(8)]
     for i in range(20):
         venv.step(actions[i % 8])
-    # The best of three stretches: on a shared machine a single timing is often another process's.
-    best = 0.0
-    for _ in range(3):
-        t0 = time.perf_counter()
-        for i in range(steps):
-            venv.step(actions[i % 8])
-        best = max(best, venv.num_envs * steps / (time.perf_counter() - t0))
-    return best
+    t0 = time.perf_counter()
+    for i in range(steps):
+        venv.step(actions[i % 8])
+    return venv.num_envs * steps / (time.perf_counter() - t0)
 
 
 def main() -> None:
@@ -73,7 +68,7 @@ def main() -> None:
     sizes = [8] if args.quick else [16, 256, 1024, 4096]
     rows = []
     for size in sizes:
-        steps = max(20, 150_000 // size) if not args.quick else 50
+        steps = max(20, 400_000 // size) if not args.quick else 50
         cart = vector_rate(CartPoleVectorEnv(num_envs=size), steps)
         for env_id in env_ids("v1"):
             native = vector_rate(gym.make_vec(env_id, num_envs=size, vectorization_mode="vector_entry_point"), steps)

@@ -80,10 +80,9 @@ def rollout(env: gym.Env, seed: int, actions: np.ndarray, meddle: bool = False) 
 
 def poke_velocities(env: gym.Env, value: float, row: int = 0) -> None:
     """Set every velocity of the current state to ``value`` (finite, but the next RK4 step overflows)."""
-    batch = env.unwrapped.batch
-    state = batch.buf.state[row].copy()
-    state[state.size // 2:] = value
-    batch.write("state", row, state)
+    buf = env.unwrapped.batch.buf
+    n = buf.state.shape[1] // 2
+    buf.state[row, n:] = value
 
 
 # --------------------------------------------------------------------------- registry and API
@@ -689,10 +688,10 @@ def test_disturbance_scenario_kicks_velocities(any_id: str) -> None:
     kicks = []
     steps = 2000
     zero = np.zeros(env.action_space.shape, np.float32)
-    buf = env.unwrapped.batch.buf
+    buf, tbuf = env.unwrapped.batch.buf, twin.unwrapped.batch.buf
     for k in range(steps):
         for name in ("state", "params_true", "params_nominal"):  # the undisturbed step from the same point
-            twin.unwrapped.batch.write(name, 0, getattr(buf, name)[0])
+            getattr(tbuf, name)[0] = getattr(buf, name)[0]
         _, _, term, trunc, info = env.step(zero)
         _, _, _, _, tinfo = twin.step(zero)
         kick = info["state"] - tinfo["state"]

@@ -8,10 +8,8 @@ The program is [`FunctionalEnv`][vnhc_gym.envs.functional.FunctionalEnv]'s ``ini
 ``transition`` (the step every task shares, around the task's own functions), batched with
 ``jax.vmap`` and compiled with ``jax.jit`` in float64 (inside ``jax.enable_x64``, so a user's global
 JAX settings stay as they are).  Each episode's whole memory is one float64 row (its state, true and
-nominal parameters, observation, and the last step's outputs) and one random key, kept where JAX
-computes; a step (with the resets of the rows that ended at the last one) or a reset is one compiled
-call over all rows, with masks of the rows it acts on, that sends the actions and brings the memory
-back for numpy to read.
+nominal parameters, observation, and the last step's outputs) and one random key; a step or a reset
+is one compiled call over all rows, with a mask of the rows it acts on.
 """
 
 from __future__ import annotations
@@ -152,16 +150,11 @@ def _program(env: FunctionalEnv, params: EnvParams, widths: dict[str, int]) -> _
         return mem, keys
 
     @jax.jit
-    def step(mem: jax.Array, keys: jax.Array, actions: jax.Array, mask: jax.Array, restart: jax.Array,
-             flat: jax.Array) -> tuple[jax.Array, jax.Array]:
-        # The rows of ``mask`` step and then those of ``restart`` start new episodes, in one call: a
-        # vector environment resets the rows that ended at the last step while it steps the others,
-        # and a second call cost as much as the step at small batches.
+    def step(mem: jax.Array, keys: jax.Array, actions: jax.Array, mask: jax.Array, flat: jax.Array
+             ) -> tuple[jax.Array, jax.Array]:
         p = unravel(flat)
         rows, new_keys = jax.vmap(step_row, in_axes=(0, 0, 0, None))(keys, mem, actions, p)
-        mem, keys = jnp.where(mask[:, None], rows, mem), jnp.where(mask[:, None], new_keys, keys)
-        return jax.lax.cond(jnp.any(restart), reset, lambda mem, keys, restart, flat: (mem, keys),
-                            mem, keys, restart, flat)
+        return jnp.where(mask[:, None], rows, mem), jnp.where(mask[:, None], new_keys, keys)
 
     program = _PROGRAMS[key] = _Program(reset=reset, step=step, unravel=unravel)
     return program
@@ -178,9 +171,6 @@ def _identity(fn: Any) -> Any:
 class Batch:
     """``n`` episodes of one configured task.
 
-    The episodes' memory lives where JAX computes (one array of rows and one of keys): a call sends
-    only the actions and brings back the memory, which `buf` shows.
-
     Parameters
     ----------
     task : Task
@@ -191,8 +181,9 @@ class Batch:
     Attributes
     ----------
     buf : Buffers
-        Every episode's arrays after the last call: read-only views (the same arrays for the batch's
-        life), current after every call.  `write` changes an episode's state or parameters.
+        Every episode's arrays after the last call (the same arrays for the batch's life: its
+        fields are views of the batch's memory, and writing a state or a parameter there is what
+        the next step starts from).
     env : FunctionalEnv
         The task's environment as pure functions (with the feedback mode of `set_feedback`).
     params : EnvParams
@@ -218,33 +209,25 @@ class Batch:
         # episode the same bits.  The padding rows are never stepped or shown.
         rows = -(-self.n // _LANES) * _LANES
         self.mem = np.zeros((rows, sum(self._widths.values())))
+        self.keys = np.zeros((rows, 2), dtype=np.uint32)
         self.actions = np.zeros((rows, model.m))
         self.seeded = np.zeros(self.n, dtype=np.bool_)
         self.dt = float(task.config.dt)
         self._reasons = np.array(task.all_reasons, dtype=object)
-        self._to_device(self.mem, np.zeros((rows, 2), dtype=np.uint32))
         self.feedback = "open"
         self.set_feedback("open")
         self.buf = self._view()
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        for name in ("env", "params", "_compiled", "buf", "_mem", "_keys", "_flat", "_all", "_none"):
-            state[name] = None  # functions and device arrays: made (or found compiled) again after unpickling
-        state["_host_keys"] = self.keys
+        for name in ("env", "params", "_compiled", "buf"):
+            state[name] = None  # functions and modules: made (or found compiled) again after unpickling
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        keys = state.pop("_host_keys")
         self.__dict__.update(state)
-        self._to_device(self.mem, keys)
         self.set_feedback(self.feedback, self._gains)
         self.buf = self._view()  # views of this copy's memory
-
-    @property
-    def keys(self) -> NDArray[np.uint32]:
-        """``(rows, 2)`` every row's random key (a copy)."""
-        return np.array(self._keys)
 
     def set_feedback(self, feedback: str = "open", gains: Any = 1.0) -> None:
         """Run the geometric law inside the integrator, on top of the held force.
@@ -261,7 +244,7 @@ class Batch:
         self.env, self.params = self.task.functional(feedback=feedback, gains=k)
         self._gains = k
         with jax.enable_x64(True):
-            self._flat = jnp.asarray(ravel_pytree(self.params)[0], dtype=jnp.float64)
+            self._flat = np.asarray(ravel_pytree(self.params)[0], dtype=np.float64)
         self._compiled = _program(self.env, self.params, self._widths)
         self.feedback = feedback
 
@@ -269,14 +252,14 @@ class Batch:
     def seed(self, rows: NDArray[np.intp], seeds: list[int | None]) -> None:
         """Seed the streams of ``rows``: ``seeds[k]`` for ``rows[k]`` (an int >= 0), or ``None`` to keep
         the row's stream (fresh operating-system entropy if it was never seeded)."""
-        keys = self.keys
+        keys = np.array(self.keys)  # writable
         given = np.array([s is not None for s in seeds], dtype=np.bool_)
         if given.any():
             keys[rows[given]] = seed_keys([s for s in seeds if s is not None])
         fresh = rows[~given & ~self.seeded[rows]]
         if fresh.size:
             keys[fresh] = np.random.SeedSequence().generate_state(2 * fresh.size).reshape(-1, 2)
-        self._keys = jnp.asarray(keys)  # ``keys`` is this call's own copy
+        self.keys = keys
         self.seeded[rows] = True
 
     def reset(self, rows: NDArray[np.intp]) -> None:
@@ -284,7 +267,8 @@ class Batch:
         if not self.seeded[rows].all():
             self.seed(rows, [None] * rows.size)
         with jax.enable_x64(True):
-            self._store(*self._compiled.reset(self._mem, self._keys, self._mask(rows), self._flat))
+            mem, keys = self._compiled.reset(self.mem, self.keys, self._mask(rows), self._flat)
+        self._store(mem, keys)
 
     def act(self, rows: NDArray[np.intp], actions: NDArray[np.floating]) -> int:
         """Store the actions ``(len(rows), m)`` of ``rows`` (clipped to [-1, 1] by the step); the index
@@ -295,75 +279,43 @@ class Batch:
         self.actions[rows] = actions
         return -1
 
-    def step(self, rows: NDArray[np.intp], restart: NDArray[np.intp] | None = None) -> None:
-        """Advance the episodes ``rows`` by one control period with their stored actions, then start
-        new episodes in ``restart`` (rows not in ``rows``), in one call."""
+    def step(self, rows: NDArray[np.intp]) -> None:
+        """Advance the episodes ``rows`` by one control period with their stored actions."""
         with jax.enable_x64(True):
-            self._store(*self._compiled.step(self._mem, self._keys, self.actions, self._mask(rows),
-                                             self._none if restart is None else self._mask(restart), self._flat))
+            mem, keys = self._compiled.step(self.mem, self.keys, self.actions, self._mask(rows), self._flat)
+        self._store(mem, keys)
 
-    def write(self, name: str, rows: NDArray[np.intp] | int, values: NDArray[np.floating]) -> None:
-        """Set field ``name`` of `Buffers` (``"state"``, ``"params_true"``, ``"params_nominal"``) in
-        ``rows``: the next step starts from it."""
-        if name not in ("state", "params_true", "params_nominal"):
-            raise ValueError(f"write: name must be 'state', 'params_true' or 'params_nominal', got {name!r}")
-        mem = np.array(self.mem)
-        self._column(name, mem)[rows] = values
-        self._to_device(mem, self._keys)
-        np.copyto(self.mem, mem)
-
-    def _to_device(self, mem: NDArray[np.float64], keys: Any) -> None:
-        """Put copies of the memory and keys where JAX computes, and the masks that every call passes.
-
-        Copies: on a CPU, JAX may use a numpy array's memory without copying it, and the numpy
-        arrays here change later.
-        """
-        with jax.enable_x64(True):
-            self._mem = jnp.array(mem, copy=True)
-        self._keys = jnp.array(keys, copy=True)
-        rows = np.arange(mem.shape[0])
-        self._none = jnp.asarray(rows < 0)
-        self._all = jnp.asarray(rows < self.n)
-
-    def _mask(self, rows: NDArray[np.intp]) -> Any:
-        if rows.size == self.n:
-            return self._all  # rows are distinct: all of them
+    def _mask(self, rows: NDArray[np.intp]) -> NDArray[np.bool_]:
         mask = np.zeros(self.mem.shape[0], dtype=np.bool_)
         mask[rows] = True
         return mask
 
     def _store(self, mem: Any, keys: Any) -> None:
-        """Keep a call's results, and copy the memory into the arrays `buf` shows."""
-        self._mem, self._keys = mem, keys
+        """Copy a call's results into the batch's arrays, in place (so `buf`'s views stay current)."""
         np.copyto(self.mem, np.asarray(mem))
-        obs32, status, steps = self._copies
-        np.copyto(obs32, self._column("obs"))
-        np.copyto(status, self._column("status")[:, 0], casting="unsafe")
-        np.copyto(steps, self._column("steps")[:, 0], casting="unsafe")
+        self.keys = np.array(keys)
+        buf = self.buf
+        np.copyto(buf.obs32, buf.obs)
+        np.copyto(buf.status, self._column("status")[:, 0], casting="unsafe")
+        np.copyto(buf.steps, self._column("steps")[:, 0], casting="unsafe")
 
-    def _column(self, name: str, mem: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    def _column(self, name: str) -> NDArray[np.float64]:
         start = 0
         for field, width in self._widths.items():
             if field == name:
-                return (self.mem if mem is None else mem)[:self.n, start:start + width]
+                return self.mem[:self.n, start:start + width]
             start += width
         raise KeyError(name)
 
     def _view(self) -> Buffers:
-        """Read-only views of the first ``n`` rows of the memory (and of copies, updated by `_store`,
-        of the entries whose type differs: the float32 observation, the status and the step count)."""
+        """Views of the first ``n`` rows of the memory (and copies, updated by `_store`, of the
+        entries whose type differs: the float32 observation, the status and the step count)."""
         c = self._column
-        obs32, status, steps = c("obs").astype(np.float32), c("status")[:, 0].astype(np.int64), \
-            c("steps")[:, 0].astype(np.int64)
-        self._copies = (obs32, status, steps)  # written by `_store`; `buf` shows read-only views of them
-        obs32, status, steps = obs32.view(), status.view(), steps.view()
-        buf = Buffers(state=c("state"), next_state=c("next_state"), params_true=c("params_true"),
-                      params_nominal=c("params_nominal"), force_applied=c("force_applied"), phi=c("phi"),
-                      obs=c("obs"), obs32=obs32, reward=c("reward")[:, 0], abs_phi=c("abs_phi")[:, 0],
-                      abs_phi_sf=c("abs_phi_sf")[:, 0], status=status, steps=steps)
-        for a in buf:
-            a.flags.writeable = False  # the memory is JAX's: write with `write`
-        return buf
+        return Buffers(state=c("state"), next_state=c("next_state"), params_true=c("params_true"),
+                       params_nominal=c("params_nominal"), force_applied=c("force_applied"), phi=c("phi"),
+                       obs=c("obs"), obs32=c("obs").astype(np.float32), reward=c("reward")[:, 0],
+                       abs_phi=c("abs_phi")[:, 0], abs_phi_sf=c("abs_phi_sf")[:, 0],
+                       status=c("status")[:, 0].astype(np.int64), steps=c("steps")[:, 0].astype(np.int64))
 
     # ------------------------------------------------------------------ infos
     def info(self, r: int, reset: bool = False) -> dict[str, Any]:

@@ -170,16 +170,18 @@ class ConstraintVectorEnv(VectorEnv):
         bad = batch.act(rows, np.ascontiguousarray(a[rows]) if next_step else a)
         if bad >= 0:
             raise ValueError(f"actions must be finite, got row {rows[bad]}: {a[rows[bad]]!r}")
-        # Sub-envs that ended at the last step are reset instead of stepped (as SyncVectorEnv does).
-        reset_rows = np.flatnonzero(pending) if next_step else None
-        batch.step(rows, reset_rows)
+        batch.step(rows)
         buf = batch.buf
         terminated = buf.status != 0
         # As gym.make's TimeLimit: truncated at the time limit whether or not the episode also terminated.
         truncated = buf.steps >= self.max_episode_steps if self.max_episode_steps else np.zeros(n, dtype=np.bool_)
         reward = buf.reward.copy()
         final: dict[str, Any] = {}
-        if reset_rows is not None:
+        reset_rows = None
+        if next_step:
+            # Sub-envs that ended at the last step are reset instead of stepped (as SyncVectorEnv does).
+            reset_rows = np.flatnonzero(pending)
+            batch.reset(reset_rows)
             terminated[reset_rows] = False
             truncated[reset_rows] = False
             reward[reset_rows] = 0.0
