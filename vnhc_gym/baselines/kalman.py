@@ -18,10 +18,12 @@ the local current a boat reads from its observation) with its covariance ``P``:
   (the frame change, the observation) are differentiated by central differences.
 
 The process noise is white noise on the accelerations, ``Q = q^2 [[dt^3/3, dt^2/2], [dt^2/2, dt]]``
-per coordinate, and ``q_params^2 dt`` on each filtered parameter: both are tuned on validation
-episodes beside the law's gain (they stand for the model error and the kicks the filter cannot
-predict).  The law acts on the estimate.  Without observation noise the filter returns the observed
-state: the plain law.
+per coordinate (``q`` is tuned on validation episodes beside the law's gain: it stands for the
+model error and the kicks the filter cannot predict), and a random walk of each filtered parameter,
+``q_params^2 dt`` per step, which also moves the state the parameter carries
+([`parameter_drift`][vnhc_gym.tasks.base.Task.parameter_drift]: the velocity a boat drifts with).
+The law acts on the estimate.  Without observation noise the filter returns the observed state: the
+plain law.
 
 Why a filter of our own rather than filterpy or dynamax: it runs online inside a controller,
 batched over episodes, on a process model that is itself JAX code whose Jacobian JAX gives exactly;
@@ -166,11 +168,9 @@ class KalmanController(ObserverController):
                              f"{self.model.name!r} {names}")
         self._filtered = tuple(names.index(p) for p in self.task.filtered_params)
         self._dim = 2 * self.model.n
-        k = len(self._filtered)
-        q_mat = np.zeros((self._dim + k, self._dim + k))
-        q_mat[:self._dim, :self._dim] = process_noise(self.model.n, self.dt, self.q)
-        q_mat[self._dim:, self._dim:] = np.eye(k) * self.q_params**2 * self.dt
-        self._q_mat = q_mat
+        k = self._dim + len(self._filtered)
+        self._q_state = np.zeros((k, k))  # the acceleration noise, on the state only
+        self._q_state[:self._dim, :self._dim] = process_noise(self.model.n, self.dt, self.q)
         self._cov: Array | None = None
         self._base: Array | None = None  # the parameters the filter does not estimate (B, n_params)
         self._predict = _batched_predict(self.system, float(self.dt), int(self.substeps), self._filtered)
@@ -178,6 +178,17 @@ class KalmanController(ObserverController):
     def __repr__(self) -> str:
         return (f"KalmanController({self.task.name!r}, gain={self.gain.tolist()}, q={self.q}, "
                 f"q_params={self.q_params}, variant={self.variant!r})")
+
+    def _parameter_walk(self, z: Array, params: Array) -> Array:
+        """The covariance ``(B, k, k)`` of one step of the filtered parameters' random walk, added in
+        the frame of the next observation (where the field differs from its local model): ``q_params^2
+        dt G G^T`` with ``G = [D; I]``, ``D`` the state each parameter carries
+        ([`parameter_drift`][vnhc_gym.tasks.base.Task.parameter_drift])."""
+        b, k = z.shape
+        g = np.zeros((b, k, k - self._dim))
+        g[:, :self._dim] = self.task.parameter_drift(z[:, :self._dim], params)
+        g[:, self._dim:] = np.eye(k - self._dim)
+        return self.q_params**2 * self.dt * g @ g.transpose(0, 2, 1)
 
     # ------------------------------------------------------------------ the filter's state z = (x, theta)
     def _read(self, obs: Array) -> tuple[Array, Array]:
@@ -251,9 +262,10 @@ class KalmanController(ObserverController):
             self._fresh = np.zeros(b, dtype=bool)
             return self._x[:, :self._dim], self._params(self._x, base)
         with jax.enable_x64(True):  # scoped: the filter needs float64, the user's settings stay
-            pred, prior = self._predict(self._x, self._cov, self._base, self._u, self._q_mat)
+            pred, prior = self._predict(self._x, self._cov, self._base, self._u, self._q_state)
             pred, prior = np.array(pred, dtype=np.float64), np.array(prior, dtype=np.float64)
-        pred, prior, _ = self._recenter(pred, prior, self._base)
+        pred, prior, moved = self._recenter(pred, prior, self._base)
+        prior += self._parameter_walk(pred, moved)
         z, cov = self._correct(pred, prior, base, np.asarray(obs, dtype=np.float64))
         bad = self._fresh | ~np.isfinite(z).all(axis=1) | ~np.isfinite(cov).all(axis=(1, 2))
         z[bad], cov[bad] = z_read[bad], fresh_cov[bad]

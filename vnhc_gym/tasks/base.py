@@ -312,6 +312,14 @@ class Task:
             out = fn(np.asarray(states, dtype=np.float64), np.asarray(params, dtype=np.float64), self.args)
         return np.array(out, dtype=np.float64)  # a writable copy
 
+    def parameter_drift(self, states: Array, params: Array) -> Array:
+        """How the state moves with an unpredicted step of the
+        [`filtered_params`][vnhc_gym.tasks.base.Task] (a Kalman filter's random walk of them):
+        ``(B, 2 n, k)``, the state's change per unit change of each of the ``k`` parameters, at
+        controller states and parameters ``(B, 2 n)``, ``(B, n_params)``.  Zero unless a filtered
+        parameter is also carried by the state (the current a boat drifts with)."""
+        return np.zeros((states.shape[0], states.shape[1], len(self.filtered_params)))
+
     def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
         """Controller states and parameters predicted one step ahead, expressed in the frame of the
         next [`controller_inputs`][vnhc_gym.tasks.base.Task.controller_inputs] (identity unless that

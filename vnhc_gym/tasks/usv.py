@@ -243,6 +243,22 @@ class USVTask(Task):
         out[:, 7:9] = np.nan
         return out
 
+    def parameter_drift(self, states: Array, params: Array) -> Array:
+        """The ground velocity moves with the current at the boat: ``d(xd, yd) = n n^T dC``.
+
+        The boat is pushed by ``W = m dV/dt`` with ``V = n n^T C`` the current's part across the
+        heading ``n = (sin theta, -cos theta)``, so its velocity through that part of the water,
+        ``w = qd - V``, has dynamics in which the current does not appear, and ``phi = n . w``.  A
+        change of the current at the boat that the affine model does not predict (the field's
+        curvature along the path) therefore carries the ground velocity with it; a filter that let
+        the current drift alone would blur ``w``, and with it ``phi`` and the law.
+        """
+        n = np.stack([np.sin(states[:, 2]), -np.cos(states[:, 2])], axis=1)
+        out = np.zeros((states.shape[0], states.shape[1], len(self.filtered_params)))
+        cols = [self.filtered_params.index(c) for c in ("c_c1", "c_c2")]
+        out[:, 3:5, cols] = n[:, :, None] * n[:, None, :]
+        return out
+
     def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
         """The same states and affine currents in the frame centred on each boat (see
         `controller_inputs`): the current at the boat becomes the field's constant term."""
