@@ -277,6 +277,55 @@ def test_vector_reset_mask_keeps_the_other_rows_base_actions() -> None:
     w.close()
 
 
+
+@pytest.mark.parametrize("env", ENVS, ids=_short)
+def test_a_filter_base_shows_the_observation_of_its_estimate(env: str) -> None:
+    """With a base that keeps an estimate the agent sees ``(obs, belief, base action)``; without
+    observation noise the Kalman filter's estimate is the observed state, so its belief is ``obs``
+    (up to the float32 observation's rounding)."""
+    plain = gym.make(env)
+    w = ResidualAction(gym.make(env), base="kalman", observe_base=True)
+    d, m = plain.observation_space.shape[0], plain.action_space.shape[0]
+    space = w.observation_space
+    assert space.shape == (2 * d + m,)
+    np.testing.assert_array_equal(space.low[d:2 * d], plain.observation_space.low)
+    obs, _ = w.reset(seed=TEST_SEED)
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        assert space.contains(obs)
+        scale = np.maximum(1.0, np.abs(obs[:d]))
+        np.testing.assert_allclose(obs[d:2 * d] / scale, obs[:d] / scale, rtol=0, atol=2e-5)
+        obs, *_ = w.step(rng.uniform(-1, 1, m).astype(np.float32))
+    w.close()
+    plain.close()
+
+
+def test_vector_filter_base_belief_is_the_base_driven_by_hand() -> None:
+    """Under noise the belief is the filter's own: the same filter driven by hand on the unwrapped
+    vector environment gives the same three parts, and the belief is not the raw observation."""
+    n = 3
+    kw = {"scenario": "noisy", "autoreset_mode": AutoresetMode.DISABLED}
+    w = ResidualVectorAction(_vec(FLOCK, n, **kw), base="kalman", observe_base=True, base_settings={"q": 1e-2})
+    plain = _vec(FLOCK, n, **kw)
+    ref = make_classical("kalman", plain, gain=5.0, q=1e-2)
+    d, m = plain.single_observation_space.shape[0], plain.single_action_space.shape[0]
+    assert w.observation_space.shape == (n, 2 * d + m)
+    obs, _ = w.reset(seed=TEST_SEED)
+    raw, _ = plain.reset(seed=TEST_SEED)
+    start = np.ones(n, dtype=bool)
+    for _ in range(8):
+        a, _ = ref.predict(raw, episode_start=start)
+        start[:] = False
+        np.testing.assert_array_equal(obs[:, :d], raw)
+        np.testing.assert_array_equal(obs[:, d:2 * d], ref.belief(raw).astype(np.float32))
+        np.testing.assert_array_equal(obs[:, 2 * d:], a)
+        assert np.abs(obs[:, d:2 * d] - raw).max() > 1e-3
+        obs, *_ = w.step(np.zeros((n, m), dtype=np.float32))
+        raw, *_ = plain.step(a)
+    w.close()
+    plain.close()
+
+
 # --------------------------------------------------------------------------- ResidualPolicy
 @pytest.mark.parametrize("observe_base", [False, True])
 @pytest.mark.parametrize("env", ENVS, ids=_short)
@@ -296,6 +345,23 @@ def test_residual_policy_is_the_wrapped_envs_applied_action(env: str, observe_ba
     # Batched, it is row by row.
     batch = np.stack([w.reset(seed=TEST_SEED + i)[0][:d] for i in range(4)])
     np.testing.assert_array_equal(policy.predict(batch)[0], np.stack([policy.predict(o)[0] for o in batch]))
+    w.close()
+
+
+def test_residual_policy_on_a_filter_base_sees_what_the_wrapper_showed() -> None:
+    """A trained residual agent on a Kalman base is run by `ResidualPolicy` on the plain environment:
+    it must receive the same ``(obs, belief, base action)`` it was trained on."""
+    rec = _Record(gym.make(FLOCK, scenario="noisy"))
+    w = ResidualAction(rec, scale=0.3, base="kalman", observe_base=True)
+    d, m = rec.observation_space.shape[0], rec.action_space.shape[0]
+    agent = _Linear(2 * d + m, m)
+    policy = ResidualPolicy(agent, make_classical("kalman", gym.make(FLOCK, scenario="noisy"), gain=5.0),
+                            scale=0.3, observe_base=True)
+    obs, _ = w.reset(seed=TEST_SEED)
+    for t in range(20):
+        mine, _ = policy.predict(obs[:d], episode_start=np.array([t == 0]))
+        obs, *_ = w.step(agent.predict(obs)[0])
+        np.testing.assert_array_equal(rec.actions[-1], mine)
     w.close()
 
 

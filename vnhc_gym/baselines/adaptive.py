@@ -110,6 +110,7 @@ class AdaptiveController(StatefulLaw):
     def act(self, obs: Array) -> Array:
         p = self.estimates(obs)
         states: Array = self._x  # type: ignore[assignment]  # set by estimates
+        self._estimate = (states, p)
         u, singular = self.law(states, p)
         a = np.clip(np.where(np.isfinite(u), u / self.force_bound, 0.0), -1.0, 1.0)
         # The force the environment receives from this action (``predict`` returns float32).

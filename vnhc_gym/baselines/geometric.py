@@ -143,6 +143,20 @@ class StatefulLaw(GeometricController):
 
     _u: NDArray[np.float64] | None = None
     _fresh: NDArray[np.bool_] | None = None
+    _estimate: tuple[Array, Array] | None = None  # the states and parameters the last action used
+    keeps_estimate = True
+
+    def belief(self, obs: Array) -> Array:
+        """The observations of the estimate the last action used (the task's
+        [`observation_of`][vnhc_gym.tasks.base.Task.observation_of]), clipped to the observation
+        space; ``obs`` where that frame holds no value (a boat's position in its own frame) and
+        before the first action."""
+        o = np.asarray(obs, dtype=np.float64).reshape(-1, self.obs_dim)
+        if self._estimate is None or self._estimate[0].shape[0] != o.shape[0]:
+            return o
+        seen = self.task.observation_of(*self._estimate)
+        bound = self.task.config.obs_clip
+        return np.where(np.isfinite(seen), np.clip(seen, -bound, bound), o)
 
     def reset_rows(self, rows: NDArray[np.bool_]) -> None:
         if self._fresh is not None and self._fresh.shape == rows.shape:

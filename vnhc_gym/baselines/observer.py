@@ -100,6 +100,7 @@ class ObserverController(StatefulLaw):
 
     def act(self, obs: Array) -> Array:
         x, p = self.estimate(obs)
+        self._estimate = (x, p)
         u, singular = self.law(x, p)
         a = np.clip(np.where(np.isfinite(u), u / self.force_bound, 0.0), -1.0, 1.0)
         # The force the environment receives from this action (``predict`` returns float32).

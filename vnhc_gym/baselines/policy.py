@@ -63,6 +63,8 @@ class Policy:
     obs_dim: int
     act_dim: int
     name: str = "policy"
+    #: Whether `belief` gives the observations of an estimate the policy keeps (a filter's).
+    keeps_estimate: bool = False
 
     def check_obs(self, obs: ArrayLike) -> tuple[Array, bool]:
         """``(batch, single)``: the observations as a ``(n, d)`` float64 array, and whether one was given."""
@@ -75,6 +77,12 @@ class Policy:
 
     def act(self, obs: Array) -> Array:
         raise NotImplementedError
+
+    def belief(self, obs: Array) -> Array:
+        """The observations ``(n, d)`` the policy believes it would have received without noise, after
+        acting on ``obs``: those of its own estimate for a policy that keeps one (`keeps_estimate`),
+        else ``obs`` itself."""
+        return np.asarray(obs, dtype=np.float64)
 
     def reset_rows(self, rows: NDArray[np.bool_]) -> None:
         """New episodes start in ``rows`` of the next batch (stateless policies: nothing to do)."""

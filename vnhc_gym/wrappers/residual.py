@@ -6,7 +6,10 @@ controller.  [`ResidualAction`][vnhc_gym.wrappers.ResidualAction] wraps a single
 RL Zoo's ``env_wrapper`` builds); [`ResidualVectorAction`][vnhc_gym.wrappers.ResidualVectorAction]
 wraps a native vector environment (what ``vnhc-gym train`` uses); `ResidualPolicy` runs a trained
 residual agent with its base on the plain environment.  With ``observe_base=True`` the base action
-is appended to the observation, so the agent sees what it corrects.
+is appended to the observation, so the agent sees what it corrects, and for a base that keeps an
+estimate (the observer, the Kalman filter, the adaptive law) so is the observation of its estimate
+(`vnhc_gym.baselines.Policy.belief`): what the base believes it would have seen without noise.
+The agent's observation is then ``(obs, belief, base action)``.
 
 A base with internal state (an observer, an adaptive law) predicts its next estimate with the force
 it applied; all three classes tell it the action the environment really received
@@ -56,11 +59,19 @@ def _tell_base(base: Any, applied: NDArray[Any]) -> None:
         hook(applied)
 
 
-def _with_base(obs_space: spaces.Box, act_space: spaces.Box) -> spaces.Box:
-    """The observation space with the base action appended."""
-    low = np.concatenate([obs_space.low, act_space.low]).astype(obs_space.dtype)
-    high = np.concatenate([obs_space.high, act_space.high]).astype(obs_space.dtype)
+def _with_base(obs_space: spaces.Box, act_space: spaces.Box, belief: bool) -> spaces.Box:
+    """The observation space with the base's belief (if it keeps an estimate) and action appended."""
+    parts = [obs_space, obs_space, act_space] if belief else [obs_space, act_space]
+    low = np.concatenate([p.low for p in parts]).astype(obs_space.dtype)
+    high = np.concatenate([p.high for p in parts]).astype(obs_space.dtype)
     return spaces.Box(low, high, dtype=obs_space.dtype)  # type: ignore[arg-type]
+
+
+def _seen(base: Any, obs: NDArray[Any], action: NDArray[Any], belief: bool) -> NDArray[Any]:
+    """A batch ``(n, d)`` of observations as the agent sees them: with the base's belief (after it
+    acted on ``obs``) if ``belief``, and the base's action ``(n, m)``."""
+    parts = [obs, np.asarray(base.belief(obs)), action] if belief else [obs, action]
+    return np.concatenate(parts, axis=1).astype(obs.dtype)
 
 
 class ResidualAction(gym.Wrapper):
@@ -80,7 +91,8 @@ class ResidualAction(gym.Wrapper):
     gain : float, optional
         Gain of the default base (default 5).
     observe_base : bool, default False
-        Append the base action to the observation.
+        Append the base action to the observation (and, before it, the base's belief if it keeps
+        an estimate).
     base_settings : dict, optional
         Keyword arguments of a base given by name (its gain, an observer's ``alpha``, ...).
 
@@ -96,15 +108,16 @@ class ResidualAction(gym.Wrapper):
         self.scale: float = check_number("scale", scale, low=0.0, high=1.0)
         self.base = _default_base(env, base, gain, base_settings)
         self.observe_base = bool(observe_base)
+        self._belief = self.observe_base and bool(getattr(self.base, "keeps_estimate", False))
         if self.observe_base:
-            self.observation_space = _with_base(env.observation_space, box)  # type: ignore[arg-type]
+            self.observation_space = _with_base(env.observation_space, box, self._belief)  # type: ignore[arg-type]
         self._dtype = box.dtype
         self._base_action = np.zeros(box.shape, dtype=box.dtype)
 
     def _observe(self, obs: NDArray[Any], start: bool) -> NDArray[Any]:
         a, _ = self.base.predict(obs, episode_start=np.array([start]), deterministic=True)
         self._base_action = np.asarray(a, dtype=self._dtype).reshape(self._base_action.shape)
-        return np.concatenate([obs, self._base_action]).astype(obs.dtype) if self.observe_base else obs
+        return _seen(self.base, obs[None], self._base_action[None], self._belief)[0] if self.observe_base else obs
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         obs, info = self.env.reset(seed=seed, options=options)
@@ -136,8 +149,10 @@ class ResidualVectorAction(VectorWrapper):
         self.scale = check_number("scale", scale, low=0.0, high=1.0)
         self.base = _default_base(env, base, gain, base_settings)
         self.observe_base = bool(observe_base)
+        self._belief = self.observe_base and bool(getattr(self.base, "keeps_estimate", False))
         if self.observe_base:
-            self.single_observation_space = _with_base(env.single_observation_space, box)  # type: ignore[arg-type]
+            self.single_observation_space = _with_base(env.single_observation_space, box,  # type: ignore[arg-type]
+                                                       self._belief)
             self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, env.num_envs)
         self._dtype = box.dtype
         self._base_action = np.zeros((env.num_envs, *box.shape), dtype=box.dtype)
@@ -148,7 +163,7 @@ class ResidualVectorAction(VectorWrapper):
     def _observe(self, obs: NDArray[Any], starts: NDArray[np.bool_]) -> NDArray[Any]:
         a, _ = self.base.predict(obs, episode_start=starts, deterministic=True)
         self._base_action = np.asarray(a, dtype=self._dtype).reshape(self._base_action.shape)
-        return np.concatenate([obs, self._base_action], axis=1).astype(obs.dtype) if self.observe_base else obs
+        return _seen(self.base, obs, self._base_action, self._belief) if self.observe_base else obs
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
               ) -> tuple[Any, dict[str, Any]]:
@@ -186,7 +201,8 @@ class ResidualVectorAction(VectorWrapper):
 
         They only serve to bootstrap the value at a time limit, so the base action there is the
         law's from the observation alone, of the base's variant (plain or sampled-data), which keeps
-        no state: asking a stateful base would advance its estimate of the new episode.
+        no state, and the belief is the observation itself: asking a stateful base would advance
+        its estimate of the new episode.
         """
         from vnhc_gym.baselines import GeometricController
 
@@ -199,15 +215,19 @@ class ResidualVectorAction(VectorWrapper):
                                                         variant=getattr(self.base, "variant", "plain"))
         obs = np.stack([info["final_obs"][i] for i in rows])
         a, _ = law.predict(obs)
+        seen = _seen(law, obs, np.asarray(a, dtype=self._dtype), False)
+        if self._belief:
+            seen = np.concatenate([obs, seen], axis=1)
         final = info["final_obs"].copy()
         for j, i in enumerate(rows.tolist()):
-            final[i] = np.concatenate([obs[j], np.asarray(a[j], dtype=self._dtype)]).astype(obs.dtype)
+            final[i] = seen[j]
         info["final_obs"] = final
 
 
 class ResidualPolicy:
     """A residual agent and its base as one policy: ``clip(base(obs) + scale * agent(obs'), -1, 1)``
-    (``obs'`` has the base action appended if the agent was trained with ``observe_base``)."""
+    (``obs'`` is ``obs`` with the base's belief, if it keeps an estimate, and action appended if the
+    agent was trained with ``observe_base``)."""
 
     def __init__(self, agent: Any, base: Any, scale: float = 0.2, observe_base: bool = False,
                  name: str = "residual") -> None:
@@ -225,7 +245,8 @@ class ResidualPolicy:
         starts = None if episode_start is None else np.asarray(episode_start, dtype=bool).reshape(-1)
         b, _ = self.base.predict(batch, episode_start=starts, deterministic=True)
         b = np.asarray(b, dtype=np.float64).reshape(batch.shape[0], -1)
-        seen = np.concatenate([batch, b.astype(np.float32)], axis=1) if self.observe_base else batch
+        belief = bool(getattr(self.base, "keeps_estimate", False))
+        seen = _seen(self.base, batch, b.astype(np.float32), belief) if self.observe_base else batch
         a, state = self.agent.predict(seen, state=state, episode_start=starts, deterministic=deterministic)
         out = np.clip(b + self.scale * np.clip(np.asarray(a, dtype=np.float64).reshape(b.shape), -1, 1), -1.0, 1.0)
         out32 = out.astype(np.float32)
