@@ -334,6 +334,23 @@ def test_an_oracle_below_the_best_classical_is_named_only_beyond_the_noise(tmp_p
     assert cell["why"].split("; ")[0] == says
 
 
+@pytest.mark.parametrize(("scenario", "kind"), [("noisy", "information"), ("mismatch", "model error")])
+def test_a_verdict_names_the_kind_of_headroom_left(tmp_path: Path, scenario: str, kind: str) -> None:
+    """Beyond ``NO_HEADROOM`` the reason gives the oracle's lead and its kind, which the scenario's one
+    change from nominal decides."""
+    sides = [
+        _side("oracle", 0, [0.96] * 10, validation=0.96),
+        _side("tuned_law", 0, [0.90, 0.91] * 5, validation=0.90),
+        _side("residual_ppo", 0, [0.91, 0.90] * 5, [_point(0, 0.90, 0.88, 0.0), _point(100, 0.90, 0.88, 1.0)]),
+    ]
+    for s in sides:
+        s["spec"]["scenario"] = scenario
+        s["name"] = s["name"].replace("nominal", scenario)
+    (cell,) = _report(tmp_path, sides)["verdicts"]
+    assert cell["scenario"] == scenario
+    assert cell["why"].split("; ")[0].startswith(f"headroom +0.0550 (the oracle above the best classical): {kind}:")
+
+
 def test_published_records_restore_the_report(tmp_path: Path) -> None:
     """`save_records` then `restore_records` elsewhere gives the same report; a restored run is
     finished for a sweep, and a run already there is not overwritten."""

@@ -115,7 +115,7 @@ def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, An
         # best test score would bias its probability of improvement upwards.
         top = max(learned, key=lambda r: r["validation_score"]) if learned else None
         winner, words = verdict(top, best)
-        why = _why(winner, oracle, best, top, learned)
+        why = _why(winner, oracle, best, top, learned, scenario)
         verdicts.append({"env": env, "scenario": scenario, "verdict": words, "winner": winner, "why": why,
                          "best_classical": best["algo"] if best else None, "best_learned": top["algo"] if top else None,
                          "poi_low": top.get("poi_low") if top else None,
@@ -142,12 +142,24 @@ def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, An
 #: A best classical baseline this close to the oracle (in score) leaves nothing measurable to win.
 NO_HEADROOM = 0.005
 
+#: Scenario -> the kind of headroom the oracle has there and a controller fed by observations does
+#: not.  Each scenario changes one thing from ``nominal``, where the best classical baseline is level
+#: with the oracle, so what the oracle gains in a scenario cell comes from that one change.
+HEADROOM_KIND = {
+    "noisy": "information: the oracle reads the state the observation noise hides",
+    "mismatch": "model error: the oracle knows the episode's true parameters",
+    "saturated": "the force bound, which binds the oracle too",
+    "coarse": "the control period: the oracle's law is exact for the environment's own step",
+    "disturbance": "kicks no controller foresees: the oracle acts on the kicked state at once",
+    "nominal": "the law on the true state (the oracle's sampled-data law is exact for the step)",
+}
+
 
 def _why(winner: str, oracle: dict[str, Any] | None, best: dict[str, Any] | None, top: dict[str, Any] | None,
-         learned: list[dict[str, Any]]) -> str:
+         learned: list[dict[str, Any]], scenario: str = "nominal") -> str:
     """The reason behind a cell's verdict, in words, from its numbers: how much the best learned agent
-    gains or loses, which one finishes more episodes, how much the oracle leaves to win, and whether
-    residual agents ever left their base."""
+    gains or loses, which one finishes more episodes, how much the oracle leaves to win and of which
+    kind (`HEADROOM_KIND`), and whether residual agents ever left their base."""
     if winner == "incomplete" or best is None or top is None:
         return ""
     parts = []
@@ -177,6 +189,10 @@ def _why(winner: str, oracle: dict[str, Any] | None, best: dict[str, Any] | None
             parts.append(f"no headroom (the oracle is {headroom:+.4f} above the best classical)")
         elif headroom < 0:
             parts.append(f"no headroom (the oracle is {-headroom:.4f} below the best classical)")
+        else:
+            kind = HEADROOM_KIND.get(scenario)
+            parts.append(f"headroom {headroom:+.4f} (the oracle above the best classical)"
+                         + (f": {kind}" if kind else ""))
     residual = [r for r in learned if r["algo"] in RESIDUAL_ALGOS]
     if residual and all(r.get("parity_steps") is None for r in residual):
         parts.append("no residual run beat its base on validation")
