@@ -334,21 +334,29 @@ def test_an_oracle_below_the_best_classical_is_named_only_beyond_the_noise(tmp_p
     assert cell["why"].split("; ")[0] == says
 
 
-@pytest.mark.parametrize(("scenario", "kind"), [("noisy", "information"), ("mismatch", "model error")])
-def test_a_verdict_names_the_kind_of_headroom_left(tmp_path: Path, scenario: str, kind: str) -> None:
+@pytest.mark.parametrize(("env", "scenario", "kind", "own_model"), [
+    ("cartpole", "noisy", "information", False),
+    ("usv", "noisy", "information", True),  # the boat's controllers read the current through a local model
+    ("usv", "mismatch", "model error", False),
+])
+def test_a_verdict_names_the_kind_of_headroom_left(tmp_path: Path, env: str, scenario: str, kind: str,
+                                                   own_model: bool) -> None:
     """Beyond ``NO_HEADROOM`` the reason gives the oracle's lead and its kind, which the scenario's one
-    change from nominal decides."""
+    change from nominal decides, with model error added for a task whose controllers run a model of
+    their own."""
     sides = [
         _side("oracle", 0, [0.96] * 10, validation=0.96),
         _side("tuned_law", 0, [0.90, 0.91] * 5, validation=0.90),
         _side("residual_ppo", 0, [0.91, 0.90] * 5, [_point(0, 0.90, 0.88, 0.0), _point(100, 0.90, 0.88, 1.0)]),
     ]
     for s in sides:
-        s["spec"]["scenario"] = scenario
-        s["name"] = s["name"].replace("nominal", scenario)
+        s["spec"].update(env=env, scenario=scenario)
+        s["name"] = s["name"].replace("usv-nominal", f"{env}-{scenario}")
     (cell,) = _report(tmp_path, sides)["verdicts"]
-    assert cell["scenario"] == scenario
-    assert cell["why"].split("; ")[0].startswith(f"headroom +0.0550 (the oracle above the best classical): {kind}:")
+    assert (cell["env"], cell["scenario"]) == (env, scenario)
+    reason = cell["why"].split("; ")[0]
+    assert reason.startswith(f"headroom +0.0550 (the oracle above the best classical): {kind}:")
+    assert ("and model error: the controllers run a model of their own" in reason) is own_model
 
 
 def test_published_records_restore_the_report(tmp_path: Path) -> None:

@@ -115,7 +115,7 @@ def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, An
         # best test score would bias its probability of improvement upwards.
         top = max(learned, key=lambda r: r["validation_score"]) if learned else None
         winner, words = verdict(top, best)
-        why = _why(winner, oracle, best, top, learned, scenario)
+        why = _why(winner, oracle, best, top, learned, env, scenario)
         verdicts.append({"env": env, "scenario": scenario, "verdict": words, "winner": winner, "why": why,
                          "best_classical": best["algo"] if best else None, "best_learned": top["algo"] if top else None,
                          "poi_low": top.get("poi_low") if top else None,
@@ -155,11 +155,29 @@ HEADROOM_KIND = {
 }
 
 
+def headroom_kind(env: str, scenario: str) -> str:
+    """The kind of headroom the oracle has in a cell (`HEADROOM_KIND`), with *model error* added where
+    the task's controllers run a model of their own (`Task.controller_model`, such as the boat's local
+    affine current) rather than the environment's: there a controller's gap has both kinds in every
+    scenario."""
+    from vnhc_gym.tasks import task_of_env_id
+    from vnhc_gym.tasks.base import Task
+
+    kind = HEADROOM_KIND.get(scenario, "")
+    try:
+        own_model = task_of_env_id(env).task_class.controller_model is not Task.controller_model
+    except ValueError:  # a task no longer registered (a published record of a user's task)
+        own_model = False
+    if own_model and scenario != "mismatch":
+        kind += ", and model error: the controllers run a model of their own (Task.controller_model)"
+    return kind
+
+
 def _why(winner: str, oracle: dict[str, Any] | None, best: dict[str, Any] | None, top: dict[str, Any] | None,
-         learned: list[dict[str, Any]], scenario: str = "nominal") -> str:
+         learned: list[dict[str, Any]], env: str = "", scenario: str = "nominal") -> str:
     """The reason behind a cell's verdict, in words, from its numbers: how much the best learned agent
     gains or loses, which one finishes more episodes, how much the oracle leaves to win and of which
-    kind (`HEADROOM_KIND`), and whether residual agents ever left their base."""
+    kind (`headroom_kind`), and whether residual agents ever left their base."""
     if winner == "incomplete" or best is None or top is None:
         return ""
     parts = []
@@ -190,7 +208,7 @@ def _why(winner: str, oracle: dict[str, Any] | None, best: dict[str, Any] | None
         elif headroom < 0:
             parts.append(f"no headroom (the oracle is {-headroom:.4f} below the best classical)")
         else:
-            kind = HEADROOM_KIND.get(scenario)
+            kind = headroom_kind(env, scenario)
             parts.append(f"headroom {headroom:+.4f} (the oracle above the best classical)"
                          + (f": {kind}" if kind else ""))
     residual = [r for r in learned if r["algo"] in RESIDUAL_ALGOS]
