@@ -1,11 +1,13 @@
 """PPO training throughput: the two backends side by side on every task (Stable-Baselines3 on the
 native vector environment, and PPO compiled with its environment, one seed and five in one
-program), then SB3's env-steps per second at several batch sizes, with the rollout (environment +
+program), where a compiled iteration spends its time (the environment, the update) and what that
+bounds, then SB3's env-steps per second at several batch sizes, with the rollout (environment +
 policy inference) and update (gradient steps) shares, and the effect of torch's thread count, alone
 and with two trainings at once.  Writes results/bench_train.md and .json.
 
     python experiments/bench_train.py              # about 20 minutes on 2 cores
     python experiments/bench_train.py --backends   # the side-by-side table only (13 minutes)
+    python experiments/bench_train.py --split      # where a compiled iteration spends its time (a minute a task)
     python experiments/bench_train.py --quick      # a smoke run
 
 Both backends train with the same settings (agents/hyperparams/ppo.yml: 256 environments x 64
@@ -32,6 +34,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import torch
 from stable_baselines3 import PPO
@@ -95,6 +98,74 @@ def backends(task: str, steps: int, seeds: int) -> list[dict[str, float]]:
     return rows
 
 
+def split(task: str, chunk: int = 10) -> dict[str, float]:
+    """Where a compiled PPO iteration of one seed spends its time: ``chunk`` iterations of the whole
+    program (rollout, advantages, updates) against the same number of environment steps alone (the
+    same batch, uniform random actions, no policy), each timed after its compilation; and the
+    compilation of the training program.  The update's time per env step bounds what any speed-up
+    of the environment can give: with the environment free, a run of ``n`` steps takes at least
+    ``n * update + compilation``."""
+    # One XLA thread, as the compiled trainer runs (effective before JAX's first computation).
+    os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
+    import jax
+    import jax.numpy as jnp
+
+    from vnhc_gym.envs.functional import make_jax
+    from vnhc_gym.training import ppo_jax as P
+    from vnhc_gym.training.hyperparams import load_hyperparams
+
+    eid = env_id(task)
+    s = P.settings_from(load_hyperparams("ppo", eid), f"ppo hyperparameters of {eid}")
+    env, params = make_jax(eid, "nominal")
+    ts = P.init(jnp.stack([jax.random.key(0)]), env, params, s)
+    run = jax.jit(jax.vmap(lambda t: P.iterations(env, params, s, t, chunk)))
+    t0 = time.perf_counter()
+    compiled = run.lower(ts).compile()
+    compile_s = time.perf_counter() - t0
+    ts = jax.block_until_ready(compiled(ts))[0]  # a warm-up pass
+    t0 = time.perf_counter()
+    jax.block_until_ready(compiled(ts))
+    whole = time.perf_counter() - t0
+
+    def rollout(state: Any, obs: Any, key: Any) -> Any:
+        def step(carry: Any, k: Any) -> Any:
+            st, _ = carry
+            k_act, k_env = jax.random.split(k)
+            a = jax.random.uniform(k_act, (s.n_envs, env.num_actions), minval=-1.0, maxval=1.0)
+            o2, st2, r, *_ = env.step_batch(k_env, st, a, params)
+            return (st2, o2), r
+        return jax.lax.scan(step, (state, obs), jax.random.split(key, s.n_steps * chunk))[1]
+
+    alone = jax.jit(rollout)
+    first = (jax.tree.map(lambda x: x[0], ts.env), ts.obs[0])
+    jax.block_until_ready(alone(*first, jax.random.key(1)))
+    t0 = time.perf_counter()
+    jax.block_until_ready(alone(*first, jax.random.key(2)))
+    env_s = time.perf_counter() - t0
+    steps = chunk * s.rollout
+    return {"task": task, "steps": steps, "iteration_us_per_step": 1e6 * whole / steps,
+            "env_us_per_step": 1e6 * env_s / steps, "update_us_per_step": 1e6 * (whole - env_s) / steps,
+            "compile_s": compile_s}
+
+
+def split_table(tasks: tuple[str, ...], out: Path) -> str:
+    """`split` on each task, written to ``out/bench_split.md`` and ``.json``; returns the table."""
+    parts = [split(task) for task in tasks]
+    lines = ["| task | whole iteration us/step | environment alone us/step | update us/step | update share | "
+             "compilation s | k env-steps/s at most, free environment, 983 040 steps |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    for r in parts:
+        update = r["update_us_per_step"]
+        bound = 983_040 / (983_040 * update * 1e-6 + r["compile_s"])
+        lines.append(f"| {r['task']} | {r['iteration_us_per_step']:.2f} | {r['env_us_per_step']:.2f} | {update:.2f} | "
+                     f"{100 * update / r['iteration_us_per_step']:.0f} % | {r['compile_s']:.1f} | {bound / 1e3:.1f} |")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "bench_split.json").write_text(json.dumps(parts, indent=1))
+    table = "\n".join(lines) + "\n"
+    (out / "bench_split.md").write_text(table)
+    return table
+
+
 def concurrent(jobs: int, threads: int, steps: int, task: str = "usv") -> dict[str, float]:
     """Wall time of ``jobs`` ``vnhc-gym train`` processes started together (``threads`` torch threads each)."""
     exe = shutil.which("vnhc-gym")
@@ -116,8 +187,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer steps and sizes (CI)")
     ap.add_argument("--backends", action="store_true", help="the side-by-side table of the backends only")
+    ap.add_argument("--split", action="store_true",
+                    help="only where a compiled PPO iteration spends its time (environment, update), every task")
     ap.add_argument("--out", default="results/bench_train")
     args = ap.parse_args()
+    if args.split:
+        print(split_table(("usv",) if args.quick else tuple(TASKS), Path(args.out)))
+        return
     side = []
     for task in (("usv",) if args.quick else TASKS):
         side += backends(task, 16_384 if args.quick else 983_040, 2 if args.quick else 5)
@@ -139,6 +215,7 @@ def main() -> None:
     if args.backends:
         print("\n".join(table))
         return
+    print(split_table(("usv",) if args.quick else tuple(TASKS), out), flush=True)
     steps = 8192 if args.quick else 196_608
     sizes = [8] if args.quick else [8, 64, 256, 1024]
     rows = []

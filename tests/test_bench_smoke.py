@@ -68,6 +68,13 @@ def test_bench_train_quick_prints_env_steps_per_second(tmp_path: Path) -> None:
     assert [(r["jobs"], r["threads"]) for r in res["concurrent"]] == [(1, 1), (2, 1)]
     assert all(r["wall"] > 0 for r in res["concurrent"])
     assert (out / "bench_train.md").read_text() in proc.stdout
+    # Where a compiled iteration spends its time: the environment alone takes part of the whole
+    # iteration's time, the update the rest.
+    (part,) = json.loads((out / "bench_split.json").read_text())
+    assert part["task"] == "usv" and part["compile_s"] > 0
+    assert 0 < part["env_us_per_step"] < part["iteration_us_per_step"]
+    assert part["update_us_per_step"] == pytest.approx(part["iteration_us_per_step"] - part["env_us_per_step"])
+    assert (out / "bench_split.md").read_text() in proc.stdout
 
 
 @pytest.mark.slow
