@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from vnhc_gym.baselines.tuning import CLASSICAL, REFERENCE, evaluate_classical, tune
+from vnhc_gym.baselines.tuning import CLASSICAL, evaluate_classical, tune
 from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED
 from vnhc_gym.tasks import env_id
 
@@ -54,7 +54,7 @@ def run_cell(cell: str, candidates: list[str], val_episodes: int, test_episodes:
     task, scenario = cell.split("/")
     eid = env_id(task)
     rows = []
-    for name in [*candidates, *REFERENCE]:
+    for name in [*candidates, "oracle"]:
         t0 = time.perf_counter()
         settings, table = tune(name, eid, scenario, n_episodes=val_episodes, seed=VALIDATION_SEED)
         if not table:
@@ -89,9 +89,9 @@ def main() -> int:
     for cell in args.cells:
         rows = run_cell(cell, args.candidates, args.val_episodes, args.test_episodes)
         all_rows += rows
-        scored = [r for r in rows if not r.get("skipped") and r["candidate"] not in REFERENCE]
+        scored = [r for r in rows if not r.get("skipped") and r["candidate"] != "oracle"]
         best = max(scored, key=lambda r: r["validation_score"])  # ties: the first listed
-        bound = max(r["test_score"] for r in rows if r["candidate"] in REFERENCE)
+        bound = next(r["test_score"] for r in rows if r["candidate"] == "oracle")
         head = (f"{cell}: best on validation {best['candidate']} ({best['settings']}) test score "
                 f"{best['test_score']:.4f}, success {best['test_success']:.2f}; oracle {bound:.4f}")
         if cell not in FLOORS:

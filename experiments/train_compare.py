@@ -1,8 +1,8 @@
 """The learned-vs-classical comparison: every registered task and scenario, the classical baselines,
 the oracle and the learned agents, scored on held-out episodes.
 
-The grid (``GRID``): every registered task x 6 scenarios x {the oracle (the headroom reference), the
-k = 5 law, the tuned law (gain and variant), the safety-filtered law, the observer law, the
+The grid (``GRID``): every registered task x 6 scenarios x {the oracle and the informed filter (the
+headroom references), the k = 5 law, the tuned law (gain and variant), the safety-filtered law, the observer law, the
 Kalman-filter law, the adaptive law, PPO, residual PPO on the cell's best classical baseline, PPO
 with a history of 4 observations}, and the planning baseline (MPC within
 the force bound) on nominal and saturated; 5 training seeds on nominal and on the three scenarios

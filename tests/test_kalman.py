@@ -16,7 +16,7 @@ from scipy.linalg import solve_discrete_are
 
 import vnhc_gym.tasks
 from vnhc_gym.baselines import GeometricController
-from vnhc_gym.baselines.kalman import KalmanController, correct, predict, process_noise
+from vnhc_gym.baselines.kalman import InformedKalmanController, KalmanController, correct, predict, process_noise
 from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint, derive_law
 from vnhc_gym.mechanics.printing import print_module
 
@@ -176,3 +176,61 @@ def test_the_boats_filter_sees_phi_far_better_than_its_observation() -> None:
         assert not terminated
     rms_raw, rms_est = np.sqrt(np.mean(np.square(raw))), np.sqrt(np.mean(np.square(est)))
     assert rms_est < 0.2 * rms_raw, (rms_est, rms_raw)
+
+
+# ---------------------------------------------------------------------------------------------
+# The informed filter (a headroom reference): told the true parameters, never the state
+
+
+@pytest.mark.parametrize(("env_id", "scenario"), [("vnhc_gym/CartPoleBalance-v1", "noisy"),
+                                                  ("vnhc_gym/USVStream-v1", "nominal")])
+def test_told_what_the_filter_already_knows_the_informed_filter_acts_as_it(env_id: str, scenario: str) -> None:
+    """The noisy scenario leaves the parameters nominal, and without noise the boat's observation gives
+    its local current exactly: told nothing new, the informed filter acts as the filter."""
+    envs = [gym.make(env_id, scenario=scenario) for _ in range(2)]
+    ekf = KalmanController(envs[0], gain=20.0, q=1e-4)
+    told = InformedKalmanController(envs[1], gain=20.0, q=1e-4)
+    obs = [e.reset(seed=7)[0] for e in envs]
+    for _ in range(40):
+        a, _ = ekf.predict(obs[0])
+        b, _ = told.predict(obs[1])
+        np.testing.assert_allclose(b, a, atol=1e-6)
+        obs = [e.step(x)[0] for e, x in ((envs[0], a), (envs[1], b))]
+
+
+def test_the_informed_filter_runs_the_episodes_true_parameters() -> None:
+    """Under mismatch its model's parameters are the episode's true ones, which differ from the nominal
+    ones the filter is given; and it reads the environment's rows, so a batch of another size is an
+    error naming the rows."""
+    env = gym.make("vnhc_gym/CartPoleBalance-v1", scenario="mismatch")
+    obs, info = env.reset(seed=2)
+    told = InformedKalmanController(env, gain=5.0)
+    told.predict(obs)
+    assert told._base is not None
+    np.testing.assert_allclose(told._base[0], info["params"], rtol=1e-12)
+    _, nominal = env.unwrapped.task.controller_inputs(obs[None, :])
+    assert not np.allclose(nominal[0], info["params"])
+    with pytest.raises(ValueError, match="all 1 rows"):
+        told.predict(np.stack([obs, obs, obs]))
+
+
+def test_the_boats_informed_filter_knows_the_current_at_the_boat() -> None:
+    """The law runs on the true field's value and gradient at the boat's true position (the random
+    field's outputs there), though the observations it reads are noisy: the correction never moves
+    the told parameters."""
+    env = gym.make("vnhc_gym/USVStream-v1", scenario="noisy")
+    obs, _ = env.reset(seed=4)
+    told = InformedKalmanController(env, gain=20.0, q=1e-4)
+    for _ in range(5):
+        action, _ = told.predict(obs)
+        obs, *_ = env.step(action)
+    told.predict(obs)
+    task = env.unwrapped.task
+    batch = env.unwrapped.batch
+    names = task.controller_model().param_names
+    aux = task.model.outputs(batch.buf.state, batch.buf.params_true)[0]
+    want = dict(zip(("c_c1", "c_c2", "c_j11", "c_j12", "c_j21", "c_j22"), aux, strict=False))
+    assert told._x is not None and told._base is not None
+    used = told._params(told._x, told._base)[0]  # what the law runs on: the filter's, if it moved them
+    for name, value in want.items():
+        assert used[names.index(name)] == pytest.approx(value, abs=1e-12)

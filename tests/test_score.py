@@ -359,6 +359,26 @@ def test_a_verdict_names_the_kind_of_headroom_left(tmp_path: Path, env: str, sce
     assert ("and model error: the controllers run a model of their own" in reason) is own_model
 
 
+@pytest.mark.parametrize(("informed", "says"), [
+    (0.93, "+0.0300 information (the oracle above the filter told the true model), +0.0250 model (that filter "
+           "above the best classical)"),
+    (0.90, "+0.0550 information (the oracle above the filter told the true model), +0.0000 model (that filter "
+           "above the best classical)"),  # told the model, no better: the whole headroom is information
+])
+def test_the_informed_filter_splits_the_headroom(tmp_path: Path, informed: float, says: str) -> None:
+    """With the informed filter's run in the cell the headroom is split by measurement, whatever the
+    scenario: the oracle above that filter, and that filter above the best classical baseline."""
+    rep = _report(tmp_path, [
+        _side("oracle", 0, [0.96] * 10, validation=0.96),
+        _side("informed_kalman", 0, [informed] * 10, validation=informed),
+        _side("tuned_law", 0, [0.90, 0.91] * 5, validation=0.90),
+        _side("residual_ppo", 0, [0.91, 0.90] * 5, [_point(0, 0.90, 0.88, 0.0), _point(100, 0.90, 0.88, 1.0)]),
+    ])
+    (cell,) = rep["verdicts"]
+    assert cell["best_classical"] == "tuned_law"  # a reference is never the cell's best classical
+    assert cell["why"].split("; ")[0] == f"headroom +0.0550 (the oracle above the best classical): {says}"
+
+
 def test_published_records_restore_the_report(tmp_path: Path) -> None:
     """`save_records` then `restore_records` elsewhere gives the same report; a restored run is
     finished for a sweep, and a run already there is not overwritten."""

@@ -13,7 +13,8 @@
   control of ``phi`` within the force bound on the nominal model.
 * [`OracleController`][vnhc_gym.baselines.OracleController]: the headroom reference, the
   sampled-data law on the environment's true state and parameters (not an observation-based
-  controller).
+  controller); [`InformedKalmanController`][vnhc_gym.baselines.InformedKalmanController], the
+  Kalman-filter law told the true parameters but not the state, splits its headroom.
 * [`SafetyFilter`][vnhc_gym.baselines.SafetyFilter]: any policy through a control barrier function
   on the task's velocity limits (its force changed as little as possible, only near a limit);
   [`SafeLaw`][vnhc_gym.baselines.SafeLaw] is the law through it.
@@ -25,7 +26,7 @@ Every policy takes a single, wrapped or vector environment and predicts for one 
 
 from vnhc_gym.baselines.adaptive import AdaptiveController
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
-from vnhc_gym.baselines.kalman import KalmanController
+from vnhc_gym.baselines.kalman import InformedKalmanController, KalmanController
 from vnhc_gym.baselines.mpc import MPCController
 from vnhc_gym.baselines.observer import ObserverController
 from vnhc_gym.baselines.oracle import OracleController
@@ -33,6 +34,6 @@ from vnhc_gym.baselines.policy import Policy, RandomPolicy, ZeroPolicy, task_of
 from vnhc_gym.baselines.safety import SafeLaw, SafetyFilter
 from vnhc_gym.baselines.tuning import CLASSICAL, REFERENCE, make_classical, tune
 
-__all__ = ["AdaptiveController", "CLASSICAL", "DEFAULT_GAIN", "GeometricController", "KalmanController",
-           "MPCController", "ObserverController", "OracleController", "Policy", "REFERENCE", "RandomPolicy", "SafeLaw",
-           "SafetyFilter", "ZeroPolicy", "make_classical", "task_of", "tune"]
+__all__ = ["AdaptiveController", "CLASSICAL", "DEFAULT_GAIN", "GeometricController", "InformedKalmanController",
+           "KalmanController", "MPCController", "ObserverController", "OracleController", "Policy", "REFERENCE",
+           "RandomPolicy", "SafeLaw", "SafetyFilter", "ZeroPolicy", "make_classical", "task_of", "tune"]

@@ -46,7 +46,7 @@ from vnhc_gym.envs.config import check_number
 from vnhc_gym.mechanics import functional as F
 from vnhc_gym.tasks.base import Task
 
-__all__ = ["KalmanController", "correct", "predict", "process_noise"]
+__all__ = ["InformedKalmanController", "KalmanController", "correct", "predict", "process_noise"]
 
 Array = NDArray[np.float64]
 
@@ -272,3 +272,78 @@ class KalmanController(ObserverController):
         self._x, self._cov, self._base = z, cov, base
         self._fresh[:] = False
         return z[:, :self._dim], self._params(z, base)
+
+
+class InformedKalmanController(KalmanController):
+    """A headroom reference: the Kalman-filter law told the episode's true parameters, not its state.
+
+    It sees only the observations, as [`KalmanController`][vnhc_gym.baselines.KalmanController] does,
+    but its model's parameters are the true ones ([`Task.informed_params`][vnhc_gym.tasks.base.Task.informed_params]:
+    the true parameters themselves where the controller model is the environment's own system; for
+    the boat, the affine current that matches the true field exactly at the boat).  Between it and
+    the oracle (true state and parameters) lies what the observations hide; between it and the best
+    classical baseline, what not knowing the model costs.  Like the oracle it reads the environment
+    it acts on, so it cannot be fielded.
+
+    Parameters
+    ----------
+    env : gymnasium Env or VectorEnv
+        The vnhc_gym environment it acts on (row ``i`` of a batch is sub-environment ``i``).
+    gain, q, variant
+        As for [`KalmanController`][vnhc_gym.baselines.KalmanController]; the filtered parameters
+        (the boat's local current) are not estimated but told at every step.
+    """
+
+    def __init__(self, env: Any, gain: ArrayLike = DEFAULT_GAIN, q: float = 1.0, q_params: float = 0.03,
+                 variant: str = "plain") -> None:
+        from vnhc_gym.baselines.oracle import _batch_of
+
+        super().__init__(env, gain, q=q, q_params=q_params, variant=variant)
+        self.batch = _batch_of(env)
+        self._told = np.zeros((0, len(self.model.param_names)))  # this step's told parameters (B, n_params)
+        self.name = "informed_kalman"
+
+    def __repr__(self) -> str:
+        return (f"InformedKalmanController({self.task.name!r}, gain={self.gain.tolist()}, q={self.q}, "
+                f"variant={self.variant!r})")
+
+    def _read(self, obs: Array) -> tuple[Array, Array]:
+        """``z`` read back from observations, with the true parameters (and the filtered ones told)."""
+        y, _ = self.task.controller_inputs(obs)
+        buf = self.batch.buf
+        rows = buf.state.shape[0]
+        p = self.task.informed_params(buf.state, buf.params_true)
+        if y.shape[0] == rows:
+            self._told = p
+        # Several observations a row: the bumped copies of `_jacobian`, row-major like np.repeat.
+        p = np.repeat(p, y.shape[0] // rows, axis=0)
+        return np.concatenate([y, p[:, list(self._filtered)]], axis=1), p
+
+    def estimate(self, obs: Array) -> tuple[Array, Array]:
+        rows = self.batch.buf.state.shape[0]
+        if np.shape(obs)[0] != rows:
+            raise ValueError(f"the informed filter acts on all {rows} rows of its environment at once, got "
+                             f"{np.shape(obs)[0]} observations")
+        return super().estimate(obs)
+
+    def _recenter(self, z: Array, cov: Array, base: Array) -> tuple[Array, Array, Array]:
+        """As the filter's, then the told parameters replace the predicted ones, and carry the state
+        with them as their random walk would ([`parameter_drift`][vnhc_gym.tasks.base.Task.parameter_drift]:
+        the current at a boat moves its ground velocity); told exactly, they have no variance."""
+        z, cov, p = super()._recenter(z, cov, base)
+        if not self._filtered:
+            return z, cov, p
+        cols, dim = list(self._filtered), self._dim
+        told = self._told[:, cols]
+        z, cov, p = z.copy(), cov.copy(), p.copy()
+        z[:, :dim] += np.einsum("bik,bk->bi", self.task.parameter_drift(z[:, :dim], p), told - z[:, dim:])
+        z[:, dim:] = told
+        p[:, cols] = told
+        cov[:, dim:, :] = 0.0
+        cov[:, :, dim:] = 0.0
+        return z, cov, p
+
+    def _parameter_walk(self, z: Array, params: Array) -> Array:
+        """None: the told parameters' change moves the state exactly (`_recenter`), where the filter's
+        random walk spreads it as variance of the parameters and, with them, of the state."""
+        return np.zeros((z.shape[0], z.shape[1], z.shape[1]))

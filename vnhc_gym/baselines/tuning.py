@@ -15,10 +15,13 @@ sampled-data law, exact for the hold (``exp(-k dt)`` per period at any gain), he
 limits it would be its base, so [`tune`][vnhc_gym.baselines.tune] skips it there
 ([`applicable`][vnhc_gym.baselines.tuning.applicable]).
 
-``REFERENCE`` holds the headroom reference ``oracle``, tuned the same way: the sampled-data law on
-the environment's true state and parameters (`vnhc_gym.baselines.oracle`).  It is not a
-controller one could field, and never a cell's best classical baseline; it says how far that
-baseline is from what the law attains with perfect information.
+``REFERENCE`` holds the headroom references, tuned the same way: ``oracle``, the sampled-data law
+on the environment's true state and parameters (`vnhc_gym.baselines.oracle`), and
+``informed_kalman``, the Kalman-filter law told the true parameters but not the state
+(`vnhc_gym.baselines.kalman`).  They are not controllers one could field, and never a cell's best
+classical baseline; the oracle says how far that baseline is from what the law attains with perfect
+information, the informed filter how much of that distance is the observations' and how much the
+model's.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from typing import Any
 
 from vnhc_gym.baselines.adaptive import AdaptiveController
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
-from vnhc_gym.baselines.kalman import KalmanController
+from vnhc_gym.baselines.kalman import InformedKalmanController, KalmanController
 from vnhc_gym.baselines.mpc import MPCController
 from vnhc_gym.baselines.observer import ObserverController
 from vnhc_gym.baselines.oracle import OracleController
@@ -62,6 +65,7 @@ CLASSICAL: dict[str, tuple[type, dict[str, list[Any]]]] = {
 #: The headroom reference, in the same form (the gain of exp(-k dt) per control period).
 REFERENCE: dict[str, tuple[type, dict[str, list[Any]]]] = {
     "oracle": (OracleController, {"gain": [2.0, 5.0, 10.0, 20.0, 40.0, 80.0, 160.0]}),
+    "informed_kalman": (InformedKalmanController, CLASSICAL["kalman"][1]),
 }
 
 

@@ -18,7 +18,7 @@ RESIDUAL_ALGOS = ("residual_ppo", "residual_sac")
 CLASSICAL_ALGOS = ("law", "tuned_law", "safe_law", "observer", "kalman", "adaptive", "mpc")
 #: Classical baselines that plan (model-predictive control): fielded as they are, never a residual base.
 PLANNING_ALGOS = ("mpc",)
-REFERENCE_ALGOS = ("oracle",)
+REFERENCE_ALGOS = ("oracle", "informed_kalman")
 ALL_ALGOS = LEARNED_ALGOS + CLASSICAL_ALGOS + REFERENCE_ALGOS
 #: Where a learned run trains: Stable-Baselines3 (and SBX), or compiled with its environment
 #: (`vnhc_gym.training.run_jax`: PPO and SAC).  Classical runs have no backend.

@@ -115,7 +115,7 @@ def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, An
         # best test score would bias its probability of improvement upwards.
         top = max(learned, key=lambda r: r["validation_score"]) if learned else None
         winner, words = verdict(top, best)
-        why = _why(winner, oracle, best, top, learned, env, scenario)
+        why = _why(winner, oracle, best, top, learned, env, scenario, cell.get("informed_kalman"))
         verdicts.append({"env": env, "scenario": scenario, "verdict": words, "winner": winner, "why": why,
                          "best_classical": best["algo"] if best else None, "best_learned": top["algo"] if top else None,
                          "poi_low": top.get("poi_low") if top else None,
@@ -174,10 +174,14 @@ def headroom_kind(env: str, scenario: str) -> str:
 
 
 def _why(winner: str, oracle: dict[str, Any] | None, best: dict[str, Any] | None, top: dict[str, Any] | None,
-         learned: list[dict[str, Any]], env: str = "", scenario: str = "nominal") -> str:
+         learned: list[dict[str, Any]], env: str = "", scenario: str = "nominal",
+         informed: dict[str, Any] | None = None) -> str:
     """The reason behind a cell's verdict, in words, from its numbers: how much the best learned agent
     gains or loses, which one finishes more episodes, how much the oracle leaves to win and of which
-    kind (`headroom_kind`), and whether residual agents ever left their base."""
+    kind, and whether residual agents ever left their base.  With the informed filter's row (the
+    Kalman-filter law told the true parameters, not the state) the headroom is split by measurement:
+    the oracle above it is what the observations hide, it above the best classical baseline what not
+    knowing the model costs; without it the kind is named from the scenario (`headroom_kind`)."""
     if winner == "incomplete" or best is None or top is None:
         return ""
     parts = []
@@ -207,6 +211,12 @@ def _why(winner: str, oracle: dict[str, Any] | None, best: dict[str, Any] | None
             parts.append(f"no headroom (the oracle is {headroom:+.4f} above the best classical)")
         elif headroom < 0:
             parts.append(f"no headroom (the oracle is {-headroom:.4f} below the best classical)")
+        elif informed is not None:
+            model = max(0.0, informed["score"] - best["score"])
+            hidden = oracle["score"] - max(informed["score"], best["score"])
+            parts.append(f"headroom {headroom:+.4f} (the oracle above the best classical): {hidden:+.4f} information "
+                         f"(the oracle above the filter told the true model), {model:+.4f} model (that filter above "
+                         f"the best classical)")
         else:
             kind = headroom_kind(env, scenario)
             parts.append(f"headroom {headroom:+.4f} (the oracle above the best classical)"

@@ -288,6 +288,23 @@ class Task:
         """
         raise NotImplementedError
 
+    def informed_params(self, states: Array, params_true: Array) -> Array:
+        """Parameters of [`controller_model`][vnhc_gym.tasks.base.Task.controller_model] for a controller
+        told the episode's true parameters ``(B, n_params)`` (the environment's; ``states`` are its true
+        states, for a controller model whose parameters depend on where the system is): the reference
+        `vnhc_gym.baselines.InformedKalmanController`.  Default: the true parameters themselves, which
+        holds when the controller model is the environment's own system.
+
+        Raises
+        ------
+        NotImplementedError
+            For a task whose controller model is not its own system and that does not define it.
+        """
+        if type(self).controller_model is not Task.controller_model:
+            raise NotImplementedError(f"task {self.name!r}: its controllers run a model of their own "
+                                      f"(controller_model), so it must define informed_params")
+        return np.array(params_true, dtype=np.float64)
+
     def observation_of(self, states: Array, params: Array) -> Array:
         """Noise-free observations ``(B, obs_dim)`` of controller states and parameters: the task's
         own ``observe`` at each state, with ``phi`` and the extra outputs of

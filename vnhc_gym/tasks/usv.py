@@ -236,6 +236,21 @@ class USVTask(Task):
             p[:, names.index(name)] = col
         return st, p
 
+    def informed_params(self, states: Array, params_true: Array) -> Array:
+        """The affine current that matches the true field exactly at the boat (its value and gradient
+        there, from the environment's own system at the true state), with the true mass and inertia,
+        in the frame centred on the boat (see `controller_inputs`)."""
+        model = self.controller_model()
+        names, true_names = model.param_names, self.model.param_names
+        local = self.model.outputs(np.asarray(states, dtype=np.float64), np.asarray(params_true, dtype=np.float64))
+        p = np.tile(model.default_params, (local.shape[0], 1))
+        for name in ("m", "I"):
+            p[:, names.index(name)] = params_true[:, true_names.index(name)]
+        p[:, names.index("current_scale")] = 1.0  # the field's values below include its scale
+        for col, name in enumerate(("c_c1", "c_c2", "c_j11", "c_j12", "c_j21", "c_j22")):
+            p[:, names.index(name)] = local[:, col]
+        return p
+
     def observation_of(self, states: Array, params: Array) -> Array:
         """As [`Task.observation_of`][vnhc_gym.tasks.base.Task.observation_of], with the position entries
         NaN: the frame centred on the boat does not hold where the boat is."""
