@@ -234,3 +234,23 @@ def test_the_boats_informed_filter_knows_the_current_at_the_boat() -> None:
     used = told._params(told._x, told._base)[0]  # what the law runs on: the filter's, if it moved them
     for name, value in want.items():
         assert used[names.index(name)] == pytest.approx(value, abs=1e-12)
+
+
+def test_under_mismatch_the_informed_filter_reads_the_boats_true_phi() -> None:
+    """The boat observes with its chart (the nominal current), while the true current drives it: with
+    the measurement computed the environment's way, the informed filter's ``phi`` (no noise in the
+    mismatch scenario) is the environment's true ``phi``, though the observed one is not."""
+    env = gym.make("vnhc_gym/USVStream-v1", scenario="mismatch")
+    obs, info = env.reset(seed=11)
+    told = InformedKalmanController(env, gain=20.0, q=1e-4)
+    model = env.unwrapped.task.controller_model()
+    gaps = []
+    for _ in range(30):
+        action, _ = told.predict(obs)
+        assert told._x is not None and told._base is not None
+        estimate = model.phi(told._x[:, :6], told._params(told._x, told._base))[0, 0]
+        assert estimate == pytest.approx(info["phi"][0], abs=1e-4)
+        gaps.append(abs(2.0 * obs[9] - info["phi"][0]))  # the observation's phi, with the chart's current
+        obs, _, terminated, _, info = env.step(action)
+        assert not terminated
+    assert max(gaps) > 1e-2  # the chart differs from the truth, so reading phi off the observation would not do

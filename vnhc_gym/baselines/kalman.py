@@ -301,6 +301,7 @@ class InformedKalmanController(KalmanController):
         super().__init__(env, gain, q=q, q_params=q_params, variant=variant)
         self.batch = _batch_of(env)
         self._told = np.zeros((0, len(self.model.param_names)))  # this step's told parameters (B, n_params)
+        self._chart = self._told  # and the nominal ones the observation is computed with
         self.name = "informed_kalman"
 
     def __repr__(self) -> str:
@@ -315,6 +316,7 @@ class InformedKalmanController(KalmanController):
         p = self.task.informed_params(buf.state, buf.params_true)
         if y.shape[0] == rows:
             self._told = p
+            self._chart = self.task.informed_params(buf.state, buf.params_nominal)
         # Several observations a row: the bumped copies of `_jacobian`, row-major like np.repeat.
         p = np.repeat(p, y.shape[0] // rows, axis=0)
         return np.concatenate([y, p[:, list(self._filtered)]], axis=1), p
@@ -325,6 +327,20 @@ class InformedKalmanController(KalmanController):
             raise ValueError(f"the informed filter acts on all {rows} rows of its environment at once, got "
                              f"{np.shape(obs)[0]} observations")
         return super().estimate(obs)
+
+    def _correct(self, z: Array, prior: Array, base: Array, obs: Array) -> tuple[Array, Array]:
+        """As the filter's, with the environment's own measurement: ``phi`` from the true parameters, the
+        rest of the observation from the nominal ones it reports (the boat's chart of the current),
+        which under mismatch differ."""
+        b = z.shape[0]
+
+        def seen(zz: Array) -> Array:
+            reps = zz.shape[0] // b
+            return self.task.observation_of(zz[:, :self._dim], self._params(zz, np.repeat(base, reps, 0)),
+                                            chart=np.repeat(self._chart, reps, 0))
+
+        var = max(self.sigma, 1e-6) ** 2
+        return correct(z, prior, seen(z), _jacobian(seen, z), obs, var)
 
     def _recenter(self, z: Array, cov: Array, base: Array) -> tuple[Array, Array, Array]:
         """As the filter's, then the told parameters replace the predicted ones, and carry the state

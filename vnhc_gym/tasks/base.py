@@ -305,13 +305,16 @@ class Task:
                                       f"(controller_model), so it must define informed_params")
         return np.array(params_true, dtype=np.float64)
 
-    def observation_of(self, states: Array, params: Array) -> Array:
+    def observation_of(self, states: Array, params: Array, chart: Array | None = None) -> Array:
         """Noise-free observations ``(B, obs_dim)`` of controller states and parameters: the task's
         own ``observe`` at each state, with ``phi`` and the extra outputs of
         [`controller_model`][vnhc_gym.tasks.base.Task.controller_model] (a filter's measurement model).
 
         It inverts [`controller_inputs`][vnhc_gym.tasks.base.Task.controller_inputs] where that reads
-        the state back from the observation; the observation's clipping is left out.
+        the state back from the observation; the observation's clipping is left out.  ``phi`` is
+        computed with ``params``, and the observation with ``chart`` (default ``params``): an
+        environment observes with the nominal parameters it tells a controller, which differ from the
+        true ones that drive ``phi`` under mismatch.
         """
         model = self.controller_model()
         system = self.jax_system() if model is self.model else model.functions
@@ -321,12 +324,14 @@ class Task:
             if "system" in inspect.signature(observation).parameters:
                 observation = partial(observation, system=system)
 
-            def one(s: Any, p: Any, args: Any) -> Any:
-                return observation(s, system.phi(s, p), p, args)
+            def one(s: Any, p: Any, c: Any, args: Any) -> Any:
+                return observation(s, system.phi(s, p), c, args)
 
-            fn = _OBSERVATIONS[(type(self), system)] = jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
+            fn = _OBSERVATIONS[(type(self), system)] = jax.jit(jax.vmap(one, in_axes=(0, 0, 0, None)))
         with jax.enable_x64(True):
-            out = fn(np.asarray(states, dtype=np.float64), np.asarray(params, dtype=np.float64), self.args)
+            p = np.asarray(params, dtype=np.float64)
+            out = fn(np.asarray(states, dtype=np.float64), p, p if chart is None else np.asarray(chart, np.float64),
+                     self.args)
         return np.array(out, dtype=np.float64)  # a writable copy
 
     def parameter_drift(self, states: Array, params: Array) -> Array:

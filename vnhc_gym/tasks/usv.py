@@ -251,10 +251,10 @@ class USVTask(Task):
             p[:, names.index(name)] = local[:, col]
         return p
 
-    def observation_of(self, states: Array, params: Array) -> Array:
+    def observation_of(self, states: Array, params: Array, chart: Array | None = None) -> Array:
         """As [`Task.observation_of`][vnhc_gym.tasks.base.Task.observation_of], with the position entries
         NaN: the frame centred on the boat does not hold where the boat is."""
-        out = super().observation_of(states, params)
+        out = super().observation_of(states, params, chart)
         out[:, 7:9] = np.nan
         return out
 
