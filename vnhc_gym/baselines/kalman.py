@@ -294,11 +294,12 @@ class InformedKalmanController(KalmanController):
         (the boat's local current) are not estimated but told at every step.
     """
 
-    def __init__(self, env: Any, gain: ArrayLike = DEFAULT_GAIN, q: float = 1.0, q_params: float = 0.03,
-                 variant: str = "plain") -> None:
+    def __init__(self, env: Any, gain: ArrayLike = DEFAULT_GAIN, q: float = 1.0, variant: str = "plain") -> None:
         from vnhc_gym.baselines.oracle import _batch_of
 
-        super().__init__(env, gain, q=q, q_params=q_params, variant=variant)
+        # No random walk of the told parameters: their change moves the state exactly (`_recenter`),
+        # where the filter's walk spreads it as variance of the parameters and, with them, of the state.
+        super().__init__(env, gain, q=q, q_params=0.0, variant=variant)
         self.batch = _batch_of(env)
         self._told = np.zeros((0, len(self.model.param_names)))  # this step's told parameters (B, n_params)
         self._chart = self._told  # and the nominal ones the observation is computed with
@@ -358,8 +359,3 @@ class InformedKalmanController(KalmanController):
         cov[:, dim:, :] = 0.0
         cov[:, :, dim:] = 0.0
         return z, cov, p
-
-    def _parameter_walk(self, z: Array, params: Array) -> Array:
-        """None: the told parameters' change moves the state exactly (`_recenter`), where the filter's
-        random walk spreads it as variance of the parameters and, with them, of the state."""
-        return np.zeros((z.shape[0], z.shape[1], z.shape[1]))
