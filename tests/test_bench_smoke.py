@@ -64,9 +64,7 @@ def test_bench_train_quick_prints_env_steps_per_second(tmp_path: Path) -> None:
     assert all(r["steps_per_s"] > 0 for r in res["backends"])
     rows = res["throughput"]
     assert len(rows) == 2 and all(r["steps_per_s"] > 0 and 0 < r["rollout_share"] < 1 for r in rows)
-    # The user's whole job, one run alone and two started together, one torch thread each.
-    assert [(r["jobs"], r["threads"]) for r in res["concurrent"]] == [(1, 1), (2, 1)]
-    assert all(r["wall"] > 0 for r in res["concurrent"])
+    assert res["concurrent"] == []  # whole processes run in the full benchmark only
     assert (out / "bench_train.md").read_text() in proc.stdout
     # Where a compiled iteration spends its time: the environment alone takes part of the whole
     # iteration's time, the update the rest.

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -35,6 +36,14 @@ def _command() -> list[str]:
 
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, subprocess.CompletedProcess]:
+    """``vnhc-gym benchmark --quick``'s files and output.  CI runs that command itself just before the
+    tests (the README's first command's smoke run) and names its folder in ``$VNHC_GYM_QUICK_BENCHMARK``,
+    its output in ``<folder>.out`` and ``<folder>.err``: the tests read that run instead of repeating it."""
+    given = os.environ.get("VNHC_GYM_QUICK_BENCHMARK")
+    if given:
+        out = Path(given)
+        return out, subprocess.CompletedProcess(["vnhc-gym", "benchmark", "--quick"], 0,
+                                                Path(f"{given}.out").read_text(), Path(f"{given}.err").read_text())
     out = tmp_path_factory.mktemp("bench") / "tmp"
     proc = subprocess.run([*_command(), "benchmark", "--quick", "--out", str(out)], capture_output=True, text=True,
                           timeout=600)
@@ -100,13 +109,15 @@ def test_quick_benchmark_numbers_are_the_law_rolled_out_by_hand(quick: Any, env:
     assert proc.returncode == 0, proc.stderr[-3000:]
     with open(out / "benchmark.csv") as fh:
         rows = {(r["env_id"], r["scenario"], r["policy"]): r for r in csv.DictReader(fh)}
+    # CI's run of the command compiled at XLA's default optimisation level and the tests at level 0
+    # (conftest.py): their arithmetic differs in the last bits, far below a wrong mean's error.
     for scenario in ("nominal", "noisy"):
         hand = _by_hand(env, scenario, episodes=3, max_time=2.0)
         row = rows[(env, scenario, "law")]
         for metric in ("score", "success"):  # plain means over the episodes
-            assert float(row[metric]) == pytest.approx(float(np.mean(hand[metric])), rel=1e-9, abs=1e-12)
+            assert float(row[metric]) == pytest.approx(float(np.mean(hand[metric])), rel=1e-7, abs=1e-12)
         for metric in ("return", "mean_abs_phi"):  # interquartile means (rliable's IQM: 25 % trimmed)
-            assert float(row[metric]) == pytest.approx(sps.trim_mean(hand[metric], 0.25), rel=1e-9)
+            assert float(row[metric]) == pytest.approx(sps.trim_mean(hand[metric], 0.25), rel=1e-7)
     # The in-loop reference does not see the observation noise; the law does.
     assert rows[(env, "noisy", "inloop")]["mean_abs_phi"] == rows[(env, "nominal", "inloop")]["mean_abs_phi"]
     assert rows[(env, "noisy", "law")]["mean_abs_phi"] != rows[(env, "nominal", "law")]["mean_abs_phi"]
