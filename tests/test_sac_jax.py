@@ -79,9 +79,9 @@ def _train(out: Path, n_timesteps: int, seeds: list[int], test_episodes: int = 5
 
 @pytest.fixture(scope="module")
 def usv_runs(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """Two seeds trained in one program, long enough to learn."""
+    """One seed, long enough to learn (seeds side by side: the test below)."""
     out = tmp_path_factory.mktemp("sac_jax")
-    return {"out": out, "both": _train(out / "both", BUDGET, [0, 1])}
+    return {"out": out, "both": _train(out / "both", BUDGET, [0])}
 
 
 @pytest.mark.slow

@@ -75,6 +75,12 @@ class TaskFunctions:
     uncertain : tuple of bool
         Per parameter: whether the mismatch perturbs it.
     obs_dim : int
+    controller_inputs : callable or None
+        ``controller_inputs(obs, p, args) -> (s, p_controller)``: the state and parameters of the
+        controller's model read back from an observation (the model-based controllers' view).
+    controller_system : module or None
+        The controller's model as printed functions (the environment's own system unless the task's
+        controllers run a model of their own), and its ``controller_singular_tol``.
     """
 
     name: str
@@ -89,6 +95,9 @@ class TaskFunctions:
     impulse_mask: tuple[float, ...] = ()
     uncertain: tuple[bool, ...] = ()
     obs_dim: int = 0
+    controller_inputs: Callable[..., tuple[Array, Array]] | None = None
+    controller_system: ModuleType | None = None
+    controller_singular_tol: float | None = None
 
 
 class EnvParams(NamedTuple):
@@ -182,6 +191,10 @@ class FunctionalEnv:
     @property
     def num_actions(self) -> int:
         return int(self.task.system.M)
+
+    @property
+    def obs_dim(self) -> int:
+        return int(self.task.obs_dim)
 
     def action_space(self, params: EnvParams | None = None) -> spaces.Box:
         """``Box(-1, 1, (m,))``: the force is ``force_bound * action``."""

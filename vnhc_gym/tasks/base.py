@@ -41,6 +41,7 @@ Array = NDArray[np.float64]
 
 #: The compiled, batched observation of `Task.observation_of`, by task class and printed system.
 _OBSERVATIONS: dict[tuple[type, Any], Any] = {}
+_CHARTS: dict[Any, Any] = {}
 
 class Task:
     """A virtual-constraint task configured for one environment (subclass once per task).
@@ -197,6 +198,14 @@ class Task:
             checks.append(("task_params", fns.task_params, (key, p, args), (n_params,), "the system's parameters"))
         if fns.scale_free is not None:
             checks.append(("scale_free", fns.scale_free, (s, phi, args), (m,), "one per control"))
+        chart = getattr(sys.modules[type(self).__module__], "controller_inputs", None)
+        if callable(chart):
+            ctrl = self.controller_model()
+            o = jax.ShapeDtypeStruct((int(self.obs_dim),), np.float32)
+            checks += [("controller_inputs (its state)", lambda *a: chart(*a)[0], (o, p, args), (2 * ctrl.n,),
+                        "the controller model's 2n entries"),
+                       ("controller_inputs (its parameters)", lambda *a: chart(*a)[1], (o, p, args),
+                        (len(ctrl.param_names),), "the controller model's parameters")]
         for name, fn, inputs, shape, what in checks:
             got = jax.eval_shape(fn, *inputs).shape
             if tuple(got) != shape:
@@ -245,9 +254,13 @@ class Task:
                 fn = partial(fn, system=system)
             return fn
 
+        ctrl = self.controller_model()
         fns = TaskFunctions(
             name=self.name, system=system, initial=bound("initial"), observation=bound("observation"),
             terminations=bound("terminations"), task_params=bound("task_params"), scale_free=bound("scale_free"),
+            controller_inputs=bound("controller_inputs"),
+            controller_system=system if ctrl is self.model else ctrl.functions,
+            controller_singular_tol=ctrl.singular_tol,
             reasons=tuple(str(r) for r in self.all_reasons[1:]),
             limits=tuple((r, int(i)) for r, i, _ in self.limits),
             impulse_mask=tuple(float(w) for w in self.impulse_mask),
@@ -281,12 +294,28 @@ class Task:
 
     def controller_inputs(self, obs: Array) -> tuple[Array, Array]:
         """States and parameters of [`controller_model`][vnhc_gym.tasks.base.Task.controller_model]
-        rebuilt from observations ``(B, d)``.
+        read back from observations ``(B, d)``: the task module's pure ``controller_inputs(obs, p,
+        args) -> (s, p_controller)`` for each row, with the nominal parameters ``p``, in float64.
 
         The parameters are the nominal ones (a controller is never told the true ones); entries
         the law does not depend on (positions of free-falling particles, say) may be zero.
+
+        Raises
+        ------
+        NotImplementedError
+            If the task's module defines no ``controller_inputs``.
         """
-        raise NotImplementedError
+        module = sys.modules[type(self).__module__]
+        one = getattr(module, "controller_inputs", None)
+        if not callable(one):
+            raise NotImplementedError(f"task {self.name!r}: its module {module.__name__} defines no pure "
+                                      f"controller_inputs(obs, p, args), so no controller can read its observations")
+        fn = _CHARTS.get(one)
+        if fn is None:
+            fn = _CHARTS[one] = jax.jit(jax.vmap(one, in_axes=(0, None, None)))
+        with jax.enable_x64(True):
+            s, p = fn(np.asarray(obs, dtype=np.float64), np.asarray(self.nominal, dtype=np.float64), self.args)
+        return np.array(s, dtype=np.float64), np.array(p, dtype=np.float64)  # writable copies
 
     def informed_params(self, states: Array, params_true: Array) -> Array:
         """Parameters of [`controller_model`][vnhc_gym.tasks.base.Task.controller_model] for a controller

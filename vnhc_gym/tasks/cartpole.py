@@ -45,6 +45,13 @@ def observation(s: jax.Array, phi: jax.Array, p: jax.Array, args: Args) -> jax.A
                       s[3] / OBS_VEL_SCALE, phi[0] / OBS_VEL_SCALE])
 
 
+def controller_inputs(obs: jax.Array, p: jax.Array, args: Args) -> tuple[jax.Array, jax.Array]:
+    """The state ``(x, theta, xd, thetad)`` read back from the observation (exactly, up to noise) and
+    the nominal parameters."""
+    return jnp.stack([OBS_POS_SCALE * obs[0], jnp.arctan2(obs[3], obs[2]), OBS_VEL_SCALE * obs[1],
+                      OBS_VEL_SCALE * obs[4]]), p
+
+
 @dataclass(frozen=True)
 class CartPoleOptions(TaskOptions):
     """The cart-pole's own keyword arguments."""
@@ -117,14 +124,6 @@ class CartPoleTask(Task):
         return Scene(bodies=[Body(x, 0.0, size=0.15, velocity=(float(state[2]), 0.0))],
                      links=[Link((x, 0.0), tip, color=(120, 80, 40), width=5)], guides=[track], phi=list(phi),
                      phi_units=self.phi_units, center=(0.0, 0.5), extent=2.0 * limit + 1.0)
-
-    def controller_inputs(self, obs: Array) -> tuple[Array, Array]:
-        """The state ``(x, theta, xd, thetad)`` rebuilt from the observation (exactly, up to noise)
-        and the nominal parameters."""
-        o = np.asarray(obs, dtype=np.float64)
-        st = np.stack([OBS_POS_SCALE * o[:, 0], np.arctan2(o[:, 3], o[:, 2]), OBS_VEL_SCALE * o[:, 1],
-                       OBS_VEL_SCALE * o[:, 4]], axis=1)
-        return st, np.tile(self.nominal, (o.shape[0], 1))
 
 
 class CartPoleBalanceEnv(ConstraintEnv):

@@ -135,6 +135,17 @@ def scale_free(s: jax.Array, phi: jax.Array, args: Args) -> jax.Array:
     return phi / PHI_SF_SCALE / _leader_speed(s)
 
 
+def controller_inputs(obs: jax.Array, p: jax.Array, args: Args) -> tuple[jax.Array, jax.Array]:
+    """Velocities read back from the observation (positions 0: the law does not use them) and the
+    nominal parameters."""
+    nf = (obs.shape[0] - 3) // 3  # the observation's length 3 nf + 3 (static, as `_n_agents`)
+    n = nf + 1
+    speed = jnp.exp(LOG_SPEED_SCALE * obs[2 * nf + 2])
+    s = jnp.zeros(4 * n, obs.dtype)
+    s = s.at[2 * n: 2 * n + nf].set(speed * obs[0:2 * nf:2]).at[3 * n: 3 * n + nf].set(speed * obs[1:2 * nf:2])
+    return s.at[3 * n - 1].set(speed * obs[2 * nf]).at[4 * n - 1].set(speed * obs[2 * nf + 1]), p
+
+
 @dataclass(frozen=True)
 class FlockingOptions(TaskOptions):
     """The flock's own keyword arguments."""
@@ -196,20 +207,6 @@ class FlockingTask(Task):
         """The particles in their plane, the leader red, each follower with a guide along the leader's
         direction of motion (the constraint asks its velocity to lie on it)."""
         return flock_scene(self.n_agents, state, phi)
-
-    def controller_inputs(self, obs: Array) -> tuple[Array, Array]:
-        """Velocities rebuilt from the observation (positions 0: the law does not use them) and the
-        nominal parameters."""
-        o = np.asarray(obs, dtype=np.float64)
-        nf = self.n_agents - 1
-        n = self.n_agents
-        s = np.exp(LOG_SPEED_SCALE * o[:, 2 * nf + 2])
-        st = np.zeros((o.shape[0], 4 * n))
-        st[:, 2 * n: 2 * n + nf] = s[:, None] * o[:, 0:2 * nf:2]
-        st[:, 3 * n: 3 * n + nf] = s[:, None] * o[:, 1:2 * nf:2]
-        st[:, 3 * n - 1] = s * o[:, 2 * nf]
-        st[:, 4 * n - 1] = s * o[:, 2 * nf + 1]
-        return st, np.tile(self.nominal, (o.shape[0], 1))
 
 
 class FlockingAlignEnv(ConstraintEnv):

@@ -57,6 +57,13 @@ def terminations(s: jax.Array, phi: jax.Array, args: Args) -> dict[str, jax.Arra
     return {"speed_exceeded": jnp.hypot(s[3], s[4]) > args.max_speed}
 
 
+def controller_inputs(obs: jax.Array, p: jax.Array, args: Args) -> tuple[jax.Array, jax.Array]:
+    """The state in the frame that moves and turns with the sled (heading 0 at the origin: the law
+    does not depend on where the sled is or where it heads) and the nominal parameters."""
+    zero = jnp.zeros((), obs.dtype)
+    return jnp.stack([zero, zero, zero, OBS_VEL_SCALE * obs[0], OBS_VEL_SCALE * obs[1], OBS_RATE_SCALE * obs[2]]), p
+
+
 @dataclass(frozen=True)
 class SledOptions(TaskOptions):
     """The sled's own keyword arguments."""
@@ -99,15 +106,6 @@ class SledCruiseTask(Task):
         self.impulse_mask = np.array([1.0, 1.0, 0.0])
         self.args = Args(v_ref=o.cruise_speed, max_speed=o.max_speed)
         self.limits = (("turn_rate_exceeded", 5, o.max_turn_rate),)
-
-    def controller_inputs(self, obs: Array) -> tuple[Array, Array]:
-        """States in the frame that moves and turns with the sled (heading 0 at the origin: the law
-        does not depend on where the sled is or where it heads) and the nominal parameters."""
-        o = np.asarray(obs, dtype=np.float64)
-        zero = np.zeros(o.shape[0])
-        st = np.stack([zero, zero, zero, OBS_VEL_SCALE * o[:, 0], OBS_VEL_SCALE * o[:, 1],
-                       OBS_RATE_SCALE * o[:, 2]], axis=1)
-        return st, np.tile(self.nominal, (o.shape[0], 1))
 
     def scene(self, state: Array, phi: Array, params: Array) -> Scene:
         """The sled from above on the ice: its blade's heading, its velocity, both components of phi."""

@@ -65,6 +65,18 @@ def terminations(s: jax.Array, phi: jax.Array, args: Args) -> dict[str, jax.Arra
     return {"rate_exceeded": jnp.linalg.norm(_rates(s)) > args.max_rate}
 
 
+def controller_inputs(obs: jax.Array, p: jax.Array, args: Args) -> tuple[jax.Array, jax.Array]:
+    """The state read back from the observation, at yaw 0 (a turn about the vertical changes neither
+    the dynamics nor the law): ``theta = -asin(z1)``, ``varphi = atan2(z2, z3)``, ``qd = E^-1 omega``;
+    and the nominal parameters."""
+    th = -jnp.arcsin(jnp.clip(obs[0], -1.0, 1.0))
+    ph = jnp.arctan2(obs[1], obs[2])
+    w = OBS_RATE_SCALE * obs[3:6]
+    st, ct, sp, cp = jnp.sin(th), jnp.cos(th), jnp.sin(ph), jnp.cos(ph)
+    psid = (sp * w[1] + cp * w[2]) / ct
+    return jnp.stack([jnp.zeros_like(th), th, ph, psid, cp * w[1] - sp * w[2], w[0] + st * psid]), p
+
+
 @dataclass(frozen=True)
 class SpacecraftOptions(TaskOptions):
     """The spacecraft's own keyword arguments."""
@@ -116,19 +128,6 @@ class SpacecraftTask(Task):
         self.impulse_mask = np.ones(3)
         self.args = Args(max_rate=o.max_rate)
         self.limits = (("gimbal_lock", 1, o.max_pitch),)
-
-    def controller_inputs(self, obs: Array) -> tuple[Array, Array]:
-        """The state rebuilt from the observation, at yaw 0 (a turn about the vertical changes
-        neither the dynamics nor the law): ``theta = -asin(z1)``, ``varphi = atan2(z2, z3)``,
-        ``qd = E^-1 omega``; and the nominal parameters."""
-        o = np.asarray(obs, dtype=np.float64)
-        th = -np.arcsin(np.clip(o[:, 0], -1.0, 1.0))
-        ph = np.arctan2(o[:, 1], o[:, 2])
-        w = OBS_RATE_SCALE * o[:, 3:6]
-        st, ct, sp, cp = np.sin(th), np.cos(th), np.sin(ph), np.cos(ph)
-        psid = (sp * w[:, 1] + cp * w[:, 2]) / ct
-        st_ = np.stack([np.zeros_like(th), th, ph, psid, cp * w[:, 1] - sp * w[:, 2], w[:, 0] + st * psid], axis=1)
-        return st_, np.tile(self.nominal, (o.shape[0], 1))
 
     def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
         """The predicted states at yaw 0, the frame of `controller_inputs`."""

@@ -134,6 +134,27 @@ def observation(s: jax.Array, phi: jax.Array, p: jax.Array, args: Args, *, syste
     return jnp.concatenate([head, aux[2:6]])  # the gradient (1/s): a controller's local affine model
 
 
+#: The parameters of the controller's model (`USVTask.controller_model`, the affine current), in order.
+CONTROLLER_PARAMS = ("m", "I", "current_scale", "c_c1", "c_c2", "c_j11", "c_j12", "c_j21", "c_j22")
+
+
+def controller_inputs(obs: jax.Array, p: jax.Array, args: Args) -> tuple[jax.Array, jax.Array]:
+    """The state ``(x, y, theta, xd, yd, thetad)`` and the affine current's parameters
+    (`CONTROLLER_PARAMS`) read back from the observation, in a frame centred on the boat (``x = y = 0``).
+
+    The law is the same in every frame (it depends on the current only through its value at the
+    boat), and the centred frame keeps the noisy observed position out of it: the affine field
+    ``C(p) = C0 + J p`` matches the observed (nominal) current ``C0`` and its gradient ``J`` at the
+    boat, and its scale is 1 (the observed current already includes the nominal scale).  ``m`` and
+    ``I`` are the first two nominal parameters of every current's model.
+    """
+    zero = jnp.zeros((), obs.dtype)
+    s = jnp.stack([zero, zero, jnp.arctan2(obs[1], obs[0]), OBS_VEL_SCALE * obs[2], OBS_VEL_SCALE * obs[3],
+                   OBS_RATE_SCALE * obs[4]])
+    return s, jnp.stack([p[0], p[1], jnp.ones((), obs.dtype), OBS_VEL_SCALE * obs[5], OBS_VEL_SCALE * obs[6],
+                         obs[10], obs[11], obs[12], obs[13]])
+
+
 @dataclass(frozen=True)
 class USVOptions(TaskOptions):
     """The USV's own keyword arguments."""
@@ -193,6 +214,9 @@ class USVTask(Task):
         self.fixed_field = current != "random" or current_params is not None
         self.model = make_usv(current)
         names = self.model.param_names
+        if names[:2] != ("m", "I") or self.controller_model().param_names != CONTROLLER_PARAMS:
+            raise ValueError(f"task 'usv': controller_inputs reads m, I first and writes {CONTROLLER_PARAMS}, but the "
+                             f"models' parameters are {names} and {self.controller_model().param_names}")
         self.nominal = self.model.params(m=mass, I=inertia, **overrides)
         self.obs_dim = USV_OBS_DIM
         self.impulse_mask = np.array([1.0, 1.0, 0.0])  # kicks on xd, yd
@@ -210,31 +234,6 @@ class USVTask(Task):
         """The USV with an affine current: the controller's local model of any current, from the
         current and its gradient that the observation gives at the boat."""
         return make_usv("affine")
-
-    def controller_inputs(self, obs: Array) -> tuple[Array, Array]:
-        """States ``(x, y, theta, xd, yd, thetad)`` and affine-current parameters from observations,
-        in a frame centred on the boat (``x = y = 0``).
-
-        The law is the same in every frame (it depends on the current only through its value at
-        the boat), and the centred frame keeps the noisy observed position out of it: the affine
-        field ``C(p) = C0 + J p`` matches the observed (nominal) current ``C0`` and its gradient
-        ``J`` at the boat.
-        """
-        o = np.asarray(obs, dtype=np.float64)
-        model = self.controller_model()
-        zero = np.zeros(o.shape[0])
-        th = np.arctan2(o[:, 1], o[:, 0])
-        st = np.stack([zero, zero, th, OBS_VEL_SCALE * o[:, 2], OBS_VEL_SCALE * o[:, 3], OBS_RATE_SCALE * o[:, 4]],
-                      axis=1)
-        names = model.param_names
-        p = np.tile(model.default_params, (o.shape[0], 1))
-        p[:, names.index("m")] = self.nominal[self.model.param_names.index("m")]
-        p[:, names.index("I")] = self.nominal[self.model.param_names.index("I")]
-        p[:, names.index("current_scale")] = 1.0  # the observed current already includes the nominal scale
-        for name, col in (("c_c1", OBS_VEL_SCALE * o[:, 5]), ("c_c2", OBS_VEL_SCALE * o[:, 6]), ("c_j11", o[:, 10]),
-                          ("c_j12", o[:, 11]), ("c_j21", o[:, 12]), ("c_j22", o[:, 13])):
-            p[:, names.index(name)] = col
-        return st, p
 
     def informed_params(self, states: Array, params_true: Array) -> Array:
         """The affine current that matches the true field exactly at the boat (its value and gradient

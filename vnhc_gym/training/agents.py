@@ -192,19 +192,21 @@ def load_agent(path_or_name: str | Path, env: Any = None) -> AgentPolicy:
         if not p.exists():
             raise FileNotFoundError(f"no agent {path_or_name!r}")
         meta = sidecar_of(p)
-        return AgentPolicy(JaxActor.load(p, str(meta.get("activation", "Tanh")), str(meta.get("squash", "clip"))), meta)
-    if p.suffix != ".zip" and not p.exists() and (ZOO_DIR / f"{p.name}.zip").exists():
-        p = ZOO_DIR / f"{p.name}.zip"
-    elif p.suffix != ".zip":
-        p = p.with_suffix(".zip")
-    if not p.exists():
-        raise FileNotFoundError(f"no agent {path_or_name!r}: not a file, nor one of the shipped agents {list_zoo()}")
-    if p.resolve().parent != ZOO_DIR.resolve():
-        warnings.warn(f"loading {p}: SB3 model files contain pickles; load only files you trust",
-                      UntrustedFileWarning, stacklevel=2)
-    meta = sidecar_of(p)
-    model = algorithm_class(str(meta.get("algo", "ppo"))).load(p, device="cpu")
-    agent = AgentPolicy(model, meta)
+        agent = AgentPolicy(JaxActor.load(p, str(meta.get("activation", "Tanh")), str(meta.get("squash", "clip"))),
+                            meta)
+    else:
+        if p.suffix != ".zip" and not p.exists() and (ZOO_DIR / f"{p.name}.zip").exists():
+            p = ZOO_DIR / f"{p.name}.zip"
+        elif p.suffix != ".zip":
+            p = p.with_suffix(".zip")
+        if not p.exists():
+            raise FileNotFoundError(f"no agent {path_or_name!r}: not a file, nor one of the shipped agents "
+                                    f"{list_zoo()}")
+        if p.resolve().parent != ZOO_DIR.resolve():
+            warnings.warn(f"loading {p}: SB3 model files contain pickles; load only files you trust",
+                          UntrustedFileWarning, stacklevel=2)
+        meta = sidecar_of(p)
+        agent = AgentPolicy(algorithm_class(str(meta.get("algo", "ppo"))).load(p, device="cpu"), meta)
     if agent.residual is not None:
         if env is None:
             import gymnasium as gym

@@ -23,8 +23,9 @@ SIDECAR_FORMAT = "vnhc_gym-agent/2"
 #: Training backends: Stable-Baselines3 (and SBX), or the compiled PPO and SAC (`vnhc_gym.training.ppo_jax`,
 #: `sac_jax`).
 BACKENDS = ("sb3", "jax")
-#: The algorithms the ``"jax"`` backend trains.
-JAX_ALGOS = ("ppo", "sac")
+#: The algorithms the ``"jax"`` backend trains (residual PPO on a base that is a pure function of
+#: the observation: `vnhc_gym.wrappers.residual_jax.BASES`).
+JAX_ALGOS = ("ppo", "residual_ppo", "sac")
 
 
 def resolve_env_id(env: str) -> str:

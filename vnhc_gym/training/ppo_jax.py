@@ -235,7 +235,7 @@ def init(keys: Array, env: FunctionalEnv, env_params: EnvParams, s: PPOSettings)
     """
     keys = jnp.asarray(keys)
     parts = [jax.random.split(k, 3) for k in keys]
-    draw = jax.jit(partial(init_params, s=s, obs_dim=env.task.obs_dim, act_dim=env.num_actions))
+    draw = jax.jit(partial(init_params, s=s, obs_dim=env.obs_dim, act_dim=env.num_actions))
     params = jax.tree.map(lambda *x: jnp.stack(x), *[draw(k[0]) for k in parts])
 
     @jax.jit

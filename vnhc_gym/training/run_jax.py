@@ -54,12 +54,14 @@ from vnhc_gym.training.config import (
     resolve_env_id,
     run_stem,
 )
+from vnhc_gym.wrappers.residual_jax import BASES, ResidualEnv, law_base
 
 __all__ = ["JaxActor", "train_seeds"]
 
 #: The checkpoint's arrays, by algorithm (the sidecar's ``checkpoint_format``).
 CHECKPOINT_FORMATS = {"ppo": "npz: pi.<i>.w/b, pi_out.w/b, log_std, vf.<i>.w/b, vf_out.w/b",
                       "sac": "npz: pi.<i>.w/b, pi_out.w/b, log_std_out.w/b; action tanh(pi_out)"}
+CHECKPOINT_FORMATS["residual_ppo"] = CHECKPOINT_FORMATS["ppo"] + "; on (obs, base action) if observe_base"
 #: The time the validation and test episodes last (s): `evaluate`'s default horizon.
 EPISODE_TIME = 20.0
 _NUMPY_ACTIVATIONS: dict[str, Callable[[Any], Any]] = {
@@ -147,10 +149,37 @@ def _save(path: Path, arrays: dict[str, np.ndarray]) -> None:
     os.replace(tmp, path)
 
 
+def _residual(hp: dict[str, Any], cfg: TrainConfig, env_id: str) -> dict[str, Any]:
+    """The residual settings of a ``residual_ppo`` run, taken out of its hyperparameters: the file's
+    ``env_wrapper`` (``ResidualAction``'s ``scale`` and ``observe_base``), the base from
+    ``cfg.residual_base`` (default the law) and its settings (``gain``, ``variant``) from
+    ``cfg.residual_base_settings``; what the sidecar records for `load_agent`."""
+    wrappers = hp.pop("env_wrapper", [])
+    if len(wrappers) != 1 or wrappers[0][0].split(".")[-1] != "ResidualAction":
+        raise ValueError(f"residual_ppo hyperparameters of {env_id}: env_wrapper must be one ResidualAction, "
+                         f"got {wrappers!r}")
+    kwargs = dict(wrappers[0][1])
+    unknown = sorted(set(kwargs) - {"scale", "observe_base"})
+    if unknown:
+        raise ValueError(f"residual_ppo hyperparameters of {env_id}: ResidualAction's {unknown} are not "
+                         f"implemented by the compiled PPO (it takes scale and observe_base)")
+    base = cfg.residual_base or "law"
+    if base not in BASES:
+        raise ValueError(f"backend 'jax' trains a residual on {list(BASES)} (pure functions of the observation), "
+                         f"got base {base!r} (use backend 'sb3')")
+    settings = dict(cfg.residual_base_settings or {})
+    unknown = sorted(set(settings) - {"gain", "variant"})
+    if unknown:
+        raise ValueError(f"the base {base!r} takes gain and variant, got {unknown}")
+    return {"scale": float(kwargs.get("scale", 0.2)), "observe_base": bool(kwargs.get("observe_base", False)),
+            "base": base, "base_settings": {"variant": settings.get("variant", "plain")},
+            "gain": float(settings.get("gain", 5.0))}
+
+
 def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], None] | None = None,
                 on_validation: Callable[[dict[str, float]], None] | None = None,
                 names: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    """Train ``cfg`` (``algo`` ``"ppo"`` or ``"sac"``) once per seed, all seeds in one compiled
+    """Train ``cfg`` (``algo`` ``"ppo"``, ``"residual_ppo"`` or ``"sac"``) once per seed, all seeds in one compiled
     program, and return the sidecars in the order of ``seeds``.
 
     ``on_validation`` gets each validation point of the first seed (as `train`'s).  Seed ``s``
@@ -174,11 +203,15 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
     hp, cfg = hyperparams_of(cfg, env_id)
     if cfg.n_timesteps is not None:
         hp["n_timesteps"] = int(cfg.n_timesteps)
-    algo = P if cfg.algo == "ppo" else S
+    residual = _residual(hp, cfg, env_id) if cfg.algo == "residual_ppo" else None
+    algo = S if cfg.algo == "sac" else P
     settings = algo.settings_from(hp, f"{cfg.algo} hyperparameters of {env_id}")
-    activation, squash = (settings.activation, "clip") if cfg.algo == "ppo" else ("ReLU", "tanh")
+    activation, squash = ("ReLU", "tanh") if cfg.algo == "sac" else (settings.activation, "clip")
     env, env_params = make_jax(env_id, cfg.scenario, **cfg.env_kwargs)
     val_env, val_params = make_jax(env_id, cfg.scenario)
+    if residual is not None:  # the same base, with its gain and variant, on the training and validation episodes
+        env, val_env = (ResidualEnv.around(e, law_base(e, residual["gain"], residual["base_settings"]["variant"]),
+                                           residual["scale"], residual["observe_base"]) for e in (env, val_env))
     horizon = max(1, round(EPISODE_TIME / float(val_params.dt)))
     val_keys = jnp.stack([jax.random.key(VALIDATION_SEED + i) for i in range(cfg.eval_episodes)])
     n_iter = settings.n_iterations
@@ -187,7 +220,7 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
     out_dir.mkdir(parents=True, exist_ok=True)
 
     run_chunk = jax.jit(jax.vmap(lambda ts: algo.iterations(env, env_params, settings, ts, chunk)))
-    if cfg.algo == "ppo":
+    if cfg.algo != "sac":
         def act(p: Any, obs: Any) -> Any:  # the Gaussian's mean, clipped to the action box as SB3 clips
             return jnp.clip(P.actor_apply(p, obs, activation), -1.0, 1.0)
     else:
@@ -200,7 +233,7 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
               "scenario": cfg.scenario, "seed": s, "n_envs": settings.n_envs, "n_timesteps": settings.n_timesteps,
               "config": {**asdict(cfg), "seed": s}, "hyperparams": jsonable(hp), "policy": "MlpPolicy",
               "activation": activation, "squash": squash, "normalize": jsonable(hp.get("normalize", False)),
-              "residual": None, "version": vnhc_gym.__version__, "code": code_fingerprint(), "obs_rms": None,
+              "residual": residual, "version": vnhc_gym.__version__, "code": code_fingerprint(), "obs_rms": None,
               "frame_stack": 1, "checkpoint_format": CHECKPOINT_FORMATS[cfg.algo]}
              for s, stem in zip(seeds, stems, strict=True)]
     curves: list[list[dict[str, float]]] = [[] for _ in seeds]
@@ -230,6 +263,8 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
             on_validation(curves[0][-1])
 
     ts = algo.init(jnp.stack([jax.random.key(s) for s in seeds]), env, env_params, settings)
+    if residual is not None:  # the untrained agent is its base: the policy's mean action starts at zero
+        ts = ts._replace(params={**ts.params, "pi_out": jax.tree.map(jnp.zeros_like, ts.params["pi_out"])})
     check(ts)
     t0 = time.perf_counter()
     step_chunk = run_chunk.lower(ts).compile()
@@ -247,6 +282,10 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
             from vnhc_gym.training.agents import AgentPolicy
 
             agent = AgentPolicy(JaxActor.load(out_dir / f"{meta['name']}.npz", activation, squash), meta)
+            if residual is not None:  # its base, built for the test's environment
+                import gymnasium as gym
+
+                agent.bind(gym.make(env_id, scenario=cfg.scenario))
             result = evaluate(agent, env_id, cfg.scenario, n_episodes=cfg.test_episodes, seed=TEST_SEED)
             test = {k: v for k, v in result.to_dict().items() if k in ("metrics", "summary", "seed", "n_episodes")}
         steps = int(np.asarray(ts.iteration)[i]) * settings.rollout

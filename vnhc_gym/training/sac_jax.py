@@ -218,7 +218,7 @@ def _critics(p: Params) -> Params:
 
 def init(keys: Array, env: FunctionalEnv, env_params: EnvParams, s: SACSettings) -> TrainState:
     """The seeds' states before training (a leading axis of one per key)."""
-    obs_dim, act_dim = env.task.obs_dim, env.num_actions
+    obs_dim, act_dim = env.obs_dim, env.num_actions
 
     @jax.jit
     @jax.vmap

@@ -1,0 +1,77 @@
+"""Residual PPO on the compiled backend (vnhc_gym.wrappers.residual_jax): the base in JAX against the
+numpy law, an untrained agent that is exactly its base, and a checkpoint that loads as a residual policy."""
+
+from __future__ import annotations
+
+import json
+
+import gymnasium as gym
+import jax
+import numpy as np
+import pytest
+
+from vnhc_gym.baselines import GeometricController
+from vnhc_gym.envs.functional import make_jax
+from vnhc_gym.tasks import env_ids
+from vnhc_gym.wrappers.residual_jax import ResidualEnv, law_base
+
+
+@pytest.mark.parametrize("variant", ["plain", "sampled"])
+@pytest.mark.parametrize("env_id", env_ids("v1"), ids=lambda e: e.removeprefix("vnhc_gym/"))
+def test_the_base_is_the_numpy_law_on_the_same_observations(env_id: str, variant: str) -> None:
+    """The compiled base reads the state back and applies the law as `GeometricController` does
+    (float64 both; the numpy side returns float32 actions)."""
+    env, params = make_jax(env_id, "noisy")
+    base = law_base(env, 5.0, variant)
+    with jax.enable_x64(True):
+        obs, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(jax.random.key(3), 16), params)
+        got = np.asarray(jax.vmap(base, in_axes=(0, 0, None))(obs, state.p_nominal, params))
+    law = GeometricController(gym.make(env_id, scenario="noisy"), gain=5.0, variant=variant)
+    want, _ = law.predict(np.asarray(obs))
+    assert np.all(np.abs(got) <= 1.0)
+    np.testing.assert_allclose(got, want, atol=1e-6)
+
+
+def test_the_residual_env_applies_base_plus_scaled_residual_and_shows_the_base() -> None:
+    env, params = make_jax("vnhc_gym/SledCruise-v1", "nominal")
+    base = law_base(env, 5.0)
+    res = ResidualEnv.around(env, base, scale=0.3, observe_base=True)
+    with jax.enable_x64(True):
+        obs, state = res.reset(jax.random.key(0), params)
+        b = np.asarray(base(state.obs, state.p_nominal, params))
+        np.testing.assert_array_equal(np.asarray(obs), np.concatenate([np.asarray(state.obs), b]))
+        a = np.full(env.num_actions, 0.7)
+        new, out = res.transition(jax.random.key(1), state, a, params)
+        plain, plain_out = env.transition(jax.random.key(1), state, np.clip(b + 0.3 * 0.7, -1, 1), params)
+        np.testing.assert_array_equal(np.asarray(new.s), np.asarray(plain.s))
+        assert res.obs_dim == env.obs_dim + env.num_actions == out.obs.shape[0]
+    with pytest.raises(ValueError, match="scale"):
+        ResidualEnv.around(env, base, scale=1.5)
+
+
+@pytest.mark.slow
+def test_an_untrained_residual_is_its_base_and_its_checkpoint_loads_as_a_residual_policy(tmp_path) -> None:
+    from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate
+    from vnhc_gym.training import TrainConfig, load_agent
+    from vnhc_gym.training.run_jax import EPISODE_TIME, train_seeds, validation_scores
+
+    (meta,) = train_seeds(
+        TrainConfig(algo="residual_ppo", env="sled", n_timesteps=16384, eval_points=1, eval_episodes=4,
+                    test_episodes=4, backend="jax", out=str(tmp_path)), [0])
+    assert meta["residual"] == {"scale": 0.2, "observe_base": True, "base": "law",
+                                "base_settings": {"variant": "plain"}, "gain": 5.0}
+    # At step 0 the policy's mean is 0: its validation score is the law's on the same episodes.
+    env, params = make_jax("vnhc_gym/SledCruise-v1", "nominal")
+    base = law_base(env, 5.0)
+    keys = jax.numpy.stack([jax.random.key(VALIDATION_SEED + i) for i in range(4)])
+    scores, _ = jax.jit(lambda k: validation_scores(env, params, lambda o: base(o, params.nominal, params), k,
+                                                    round(EPISODE_TIME / float(params.dt))))(keys)
+    assert meta["curve"][0]["score"] == pytest.approx(float(np.mean(scores)), rel=1e-6)
+    path = tmp_path / f"{meta['name']}.npz"
+    side = json.loads(path.with_suffix(".json").read_text())
+    agent = load_agent(path)
+    assert agent.base is not None and agent.base.variant == "plain"
+    action, state = agent.predict(np.zeros(5, np.float32))
+    assert action.shape == (2,) and state is None
+    result = evaluate(agent, side["env_id"], side["scenario"], n_episodes=4, seed=TEST_SEED)
+    assert result.summary()["score"].point == pytest.approx(side["test"]["summary"]["score"][0], rel=1e-6)
