@@ -75,3 +75,18 @@ def test_an_untrained_residual_is_its_base_and_its_checkpoint_loads_as_a_residua
     assert action.shape == (2,) and state is None
     result = evaluate(agent, side["env_id"], side["scenario"], n_episodes=4, seed=TEST_SEED)
     assert result.summary()["score"].point == pytest.approx(side["test"]["summary"]["score"][0], rel=1e-6)
+
+
+def test_a_cells_tuned_law_becomes_the_compiled_residuals_base() -> None:
+    """The sweep passes the cell's best law by name and settings (`TrainConfig.residual_base*`)."""
+    from vnhc_gym.training import TrainConfig
+    from vnhc_gym.training.config import hyperparams_of
+    from vnhc_gym.training.run_jax import _residual
+
+    cfg = TrainConfig(algo="residual_ppo", env="usv", backend="jax", residual_base="tuned_law",
+                      residual_base_settings={"gain": 20.0, "variant": "sampled"})
+    hp, cfg = hyperparams_of(cfg, "vnhc_gym/USVStream-v1")
+    got = _residual(hp, cfg, "vnhc_gym/USVStream-v1")
+    assert got == {"scale": 0.2, "observe_base": True, "base": "tuned_law", "base_settings": {"variant": "sampled"},
+                   "gain": 20.0}
+    assert "env_wrapper" not in hp  # taken out: the rest is PPO's

@@ -110,8 +110,15 @@ def test_a_compiled_run_is_its_own_entry_and_its_cells_seeds_one_unit() -> None:
     assert jx.stem.startswith("usv-nominal-ppo-jax-s1-") and jx.key() != sb3.key()
     assert (jx.label, sb3.label) == ("ppo-jax", "ppo") and algo_of(jx.label) == algo_of(sb3.label) == "ppo"
     assert algo_of("residual_ppo") == "residual_ppo"
-    with pytest.raises(ValueError, match=r"trains \['ppo', 'sac'\] only"):
-        RunSpec("residual_ppo", "usv", backend="jax")
+    with pytest.raises(ValueError, match=r"trains \['ppo', 'residual_ppo', 'sac'\] only"):
+        RunSpec("ppo_history", "usv", backend="jax")
+    with pytest.raises(ValueError, match=r"needs bases among \['law', 'tuned_law'\].*got \['kalman'\]"):
+        RunSpec("residual_ppo", "usv", backend="jax", bases=("kalman",))
+    # A compiled residual's base is chosen among the grid's laws; on SB3 among all its bases.
+    mixed = grid(["usv"], ["noisy"], ["law", "tuned_law", "kalman", "residual_ppo"], [0], 10, backend="jax")
+    assert [s.bases for s in mixed if s.algo == "residual_ppo"] == [("law", "tuned_law")]
+    mixed = grid(["usv"], ["noisy"], ["law", "tuned_law", "kalman", "residual_ppo"], [0], 10)
+    assert [s.bases for s in mixed if s.algo == "residual_ppo"] == [("law", "tuned_law", "kalman")]
     with pytest.raises(ValueError, match="backend must be one of"):
         RunSpec("ppo", "usv", backend="torch")
     specs = grid(["usv", "sled"], ["nominal"], ["law", "ppo"], [0, 1, 2], 10, backend="jax")

@@ -10,6 +10,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from vnhc_gym.wrappers.residual_jax import BASES as COMPILED_BASES
+
 #: Learned agents (trained with vnhc_gym.training), classical baselines (vnhc_gym.baselines.tuning)
 #: and the headroom reference (not a controller one could field: never a cell's best classical).
 LEARNED_ALGOS = ("ppo", "residual_ppo", "ppo_history", "sac", "residual_sac")
@@ -21,10 +23,11 @@ PLANNING_ALGOS = ("mpc",)
 REFERENCE_ALGOS = ("oracle", "informed_kalman")
 ALL_ALGOS = LEARNED_ALGOS + CLASSICAL_ALGOS + REFERENCE_ALGOS
 #: Where a learned run trains: Stable-Baselines3 (and SBX), or compiled with its environment
-#: (`vnhc_gym.training.run_jax`: PPO and SAC).  Classical runs have no backend.
+#: (`vnhc_gym.training.run_jax`: PPO, SAC and residual PPO).  Classical runs have no backend.
 SWEEP_BACKENDS = ("sb3", "jax")
-#: The learned agents the compiled backend trains.
-COMPILED_ALGOS = ("ppo", "sac")
+#: The learned agents the compiled backend trains; its residual agents' bases are the classical
+#: baselines that are pure functions of the observation (`COMPILED_BASES`: the law).
+COMPILED_ALGOS = ("ppo", "residual_ppo", "sac")
 
 
 def label(algo: str, backend: str = "sb3") -> str:
@@ -53,8 +56,8 @@ class RunSpec:
     #: A residual agent's candidate bases (its cell's best of them is its base); empty: every
     #: classical baseline but the planner.
     bases: tuple[str, ...] = ()
-    #: A learned run's training backend (`SWEEP_BACKENDS`); the compiled one trains ``ppo`` only, and
-    #: a cell's seeds of it train in one program.
+    #: A learned run's training backend (`SWEEP_BACKENDS`); the compiled one trains `COMPILED_ALGOS`,
+    #: and a cell's seeds of it train in one program.
     backend: str = "sb3"
 
     def __post_init__(self) -> None:
@@ -68,6 +71,10 @@ class RunSpec:
         bad = [b for b in self.bases if b not in CLASSICAL_ALGOS or b in PLANNING_ALGOS]
         if bad:
             raise ValueError(f"bases must be classical baselines other than the planner, got {bad}")
+        if self.backend == "jax" and self.algo in RESIDUAL_ALGOS and not (
+                self.bases and set(self.bases) <= set(COMPILED_BASES)):
+            raise ValueError(f"a residual run of backend 'jax' needs bases among {list(COMPILED_BASES)} (pure "
+                             f"functions of the observation), got {list(self.bases)}")
 
     @property
     def learned(self) -> bool:
@@ -101,19 +108,21 @@ def grid(envs: Sequence[str], scenarios: Sequence[str], algos: Sequence[str], se
          backend: str = "sb3") -> list[RunSpec]:
     """Every combination; classical baselines get one run per cell (they are deterministic).  A
     residual agent's base is the best of the grid's own classical baselines of its cell (all of them
-    but the planner when the grid has none).  ``backend`` is where PPO from scratch trains
-    (`COMPILED_ALGOS`); every other learned run trains on ``"sb3"``."""
+    but the planner when the grid has none; on the compiled backend, those of `COMPILED_BASES`).
+    ``backend`` is where the `COMPILED_ALGOS` train; every other learned run trains on ``"sb3"``."""
     ov = tuple(sorted((overrides or {}).items()))
     bases = tuple(a for a in algos if a in CLASSICAL_ALGOS and a not in PLANNING_ALGOS)
+    compiled_bases = tuple(a for a in bases if a in COMPILED_BASES) or COMPILED_BASES
     out = []
     for env in envs:
         for scenario in scenarios:
             cell_seeds = list((seeds_by_scenario or {}).get(scenario, seeds))
             for algo in algos:
                 for seed in (cell_seeds if algo in LEARNED_ALGOS else cell_seeds[:1]):
+                    run_backend = backend if algo in COMPILED_ALGOS else "sb3"
+                    run_bases = () if algo not in RESIDUAL_ALGOS else compiled_bases if run_backend == "jax" else bases
                     out.append(RunSpec(algo, env, scenario, int(seed), int(n_timesteps), ov, test_episodes,
-                                       eval_episodes, bases if algo in RESIDUAL_ALGOS else (),
-                                       backend if algo in COMPILED_ALGOS else "sb3"))
+                                       eval_episodes, run_bases, run_backend))
     return out
 
 
