@@ -50,8 +50,8 @@ VARIANTS = {"ppo": ("ppo", TINY), "residual_ppo": ("residual_ppo", TINY),
             "residual_sac": ("residual_sac", TINY_SAC)}
 RESIDUAL = ("residual_ppo", "residual_sac")
 #: PPO runs on every task (each task's environment through SB3); the other variants, whose code is the
-#: same for every task, on two.
-VARIANT_ENVS = ENVS[:2]
+#: same for every task, on the boat's (whose controllers run a model of their own).
+VARIANT_ENVS = [e for e in ENVS if "USVStream" in e]
 
 
 def _applies(env: str, variant: str) -> bool:
