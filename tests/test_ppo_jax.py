@@ -222,8 +222,8 @@ def test_the_jax_backend_refuses_what_it_does_not_train() -> None:
 
     with pytest.raises(ValueError, match="backend must be one of"):
         train(TrainConfig(backend="tf"))
-    with pytest.raises(ValueError, match=r"trains \['ppo', 'residual_ppo', 'sac'\] only"):
-        train(TrainConfig(algo="residual_sac", backend="jax"))
+    with pytest.raises(ValueError, match=r"trains \['ppo', 'residual_ppo', 'sac', 'residual_sac'\] only"):
+        train(TrainConfig(algo="recurrent_ppo", backend="jax"))
     with pytest.raises(ValueError, match="got base 'kalman'"):  # a base with a filter state
         train(TrainConfig(algo="residual_ppo", backend="jax", residual_base="kalman"))
     with pytest.raises(ValueError, match=r"takes gain and variant, got \['alpha'\]"):

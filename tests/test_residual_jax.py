@@ -53,16 +53,21 @@ def test_the_residual_env_applies_base_plus_scaled_residual_and_shows_the_base()
 
 
 @pytest.mark.slow
-def test_an_untrained_residual_is_its_base_and_its_checkpoint_loads_as_a_residual_policy(tmp_path) -> None:
+@pytest.mark.parametrize(("algo", "steps", "residual"), [
+    ("residual_ppo", 16384, {"scale": 0.2, "observe_base": True, "base": "law", "base_settings": {"variant": "plain"},
+                             "gain": 5.0}),
+    ("residual_sac", 32 * 70, {"scale": 0.1, "observe_base": True, "base": "law", "base_settings": {"variant": "plain"},
+                               "gain": 5.0, "log_std_init": -3.0})])
+def test_an_untrained_residual_is_its_base_and_its_checkpoint_loads_as_a_residual_policy(
+        tmp_path, algo: str, steps: int, residual: dict) -> None:
     from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate
     from vnhc_gym.training import TrainConfig, load_agent
     from vnhc_gym.training.run_jax import EPISODE_TIME, train_seeds, validation_scores
 
     (meta,) = train_seeds(
-        TrainConfig(algo="residual_ppo", env="sled", n_timesteps=16384, eval_points=1, eval_episodes=4,
+        TrainConfig(algo=algo, env="sled", n_timesteps=steps, eval_points=1, eval_episodes=4,
                     test_episodes=4, backend="jax", out=str(tmp_path)), [0])
-    assert meta["residual"] == {"scale": 0.2, "observe_base": True, "base": "law",
-                                "base_settings": {"variant": "plain"}, "gain": 5.0}
+    assert meta["residual"] == residual
     # At step 0 the policy's mean is 0: its validation score is the law's on the same episodes.
     env, params = make_jax("vnhc_gym/SledCruise-v1", "nominal")
     base = law_base(env, 5.0)

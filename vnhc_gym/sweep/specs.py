@@ -27,7 +27,7 @@ ALL_ALGOS = LEARNED_ALGOS + CLASSICAL_ALGOS + REFERENCE_ALGOS
 SWEEP_BACKENDS = ("sb3", "jax")
 #: The learned agents the compiled backend trains; its residual agents' bases are the classical
 #: baselines that are pure functions of the observation (`COMPILED_BASES`: the law).
-COMPILED_ALGOS = ("ppo", "residual_ppo", "sac")
+COMPILED_ALGOS = ("ppo", "residual_ppo", "sac", "residual_sac")
 
 
 def label(algo: str, backend: str = "sb3") -> str:

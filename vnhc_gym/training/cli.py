@@ -22,8 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=None,
                         help="several seeds, trained in one compiled program (backend jax); replaces --seed")
     parser.add_argument("--backend", default=d.backend, choices=BACKENDS,
-                        help=f"sb3: Stable-Baselines3 or SBX; jax: compiled PPO, SAC or residual PPO on the law "
-                             f"(default {d.backend})")
+                        help=f"sb3: Stable-Baselines3 or SBX; jax: compiled PPO or SAC, either also as a residual "
+                             f"on the law (default {d.backend})")
     parser.add_argument("-n", "--n-timesteps", type=int, default=None,
                         help="training budget (default: the hyperparameter file's)")
     parser.add_argument("--out", default=d.out, help=f"output folder (default {d.out})")

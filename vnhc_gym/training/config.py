@@ -23,9 +23,9 @@ SIDECAR_FORMAT = "vnhc_gym-agent/2"
 #: Training backends: Stable-Baselines3 (and SBX), or the compiled PPO and SAC (`vnhc_gym.training.ppo_jax`,
 #: `sac_jax`).
 BACKENDS = ("sb3", "jax")
-#: The algorithms the ``"jax"`` backend trains (residual PPO on a base that is a pure function of
+#: The algorithms the ``"jax"`` backend trains (the residual ones on a base that is a pure function of
 #: the observation: `vnhc_gym.wrappers.residual_jax.BASES`).
-JAX_ALGOS = ("ppo", "residual_ppo", "sac")
+JAX_ALGOS = ("ppo", "residual_ppo", "sac", "residual_sac")
 
 
 def resolve_env_id(env: str) -> str:

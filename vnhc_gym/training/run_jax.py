@@ -61,7 +61,8 @@ __all__ = ["JaxActor", "train_seeds"]
 #: The checkpoint's arrays, by algorithm (the sidecar's ``checkpoint_format``).
 CHECKPOINT_FORMATS = {"ppo": "npz: pi.<i>.w/b, pi_out.w/b, log_std, vf.<i>.w/b, vf_out.w/b",
                       "sac": "npz: pi.<i>.w/b, pi_out.w/b, log_std_out.w/b; action tanh(pi_out)"}
-CHECKPOINT_FORMATS["residual_ppo"] = CHECKPOINT_FORMATS["ppo"] + "; on (obs, base action) if observe_base"
+CHECKPOINT_FORMATS.update({f"residual_{a}": CHECKPOINT_FORMATS[a] + "; on (obs, base action) if observe_base"
+                           for a in ("ppo", "sac")})
 #: The time the validation and test episodes last (s): `evaluate`'s default horizon.
 EPISODE_TIME = 20.0
 _NUMPY_ACTIVATIONS: dict[str, Callable[[Any], Any]] = {
@@ -150,19 +151,26 @@ def _save(path: Path, arrays: dict[str, np.ndarray]) -> None:
 
 
 def _residual(hp: dict[str, Any], cfg: TrainConfig, env_id: str) -> dict[str, Any]:
-    """The residual settings of a ``residual_ppo`` run, taken out of its hyperparameters: the file's
-    ``env_wrapper`` (``ResidualAction``'s ``scale`` and ``observe_base``), the base from
-    ``cfg.residual_base`` (default the law) and its settings (``gain``, ``variant``) from
-    ``cfg.residual_base_settings``; what the sidecar records for `load_agent`."""
+    """The residual settings of a ``residual_ppo`` or ``residual_sac`` run, taken out of its
+    hyperparameters: the file's ``env_wrapper`` (``ResidualAction``'s ``scale`` and
+    ``observe_base``), the base from ``cfg.residual_base`` (default the law) and its settings
+    (``gain``, ``variant``) from ``cfg.residual_base_settings``; what the sidecar records for
+    `load_agent`.  For SAC also the ``policy_kwargs``' ``log_std_init`` (``log_std_init`` in the
+    result): the constant its log-standard-deviation head starts at."""
+    where = f"{cfg.algo} hyperparameters of {env_id}"
     wrappers = hp.pop("env_wrapper", [])
     if len(wrappers) != 1 or wrappers[0][0].split(".")[-1] != "ResidualAction":
-        raise ValueError(f"residual_ppo hyperparameters of {env_id}: env_wrapper must be one ResidualAction, "
-                         f"got {wrappers!r}")
+        raise ValueError(f"{where}: env_wrapper must be one ResidualAction, got {wrappers!r}")
     kwargs = dict(wrappers[0][1])
     unknown = sorted(set(kwargs) - {"scale", "observe_base"})
     if unknown:
-        raise ValueError(f"residual_ppo hyperparameters of {env_id}: ResidualAction's {unknown} are not "
-                         f"implemented by the compiled PPO (it takes scale and observe_base)")
+        raise ValueError(f"{where}: ResidualAction's {unknown} are not implemented by the compiled backend "
+                         f"(it takes scale and observe_base)")
+    log_std = None
+    if cfg.algo == "residual_sac":  # SBX's SAC reads log_std_init only for the residual's start (`_start_at_base`)
+        pk = dict(hp.get("policy_kwargs") or {})
+        log_std = pk.pop("log_std_init", None)
+        hp["policy_kwargs"] = pk
     base = cfg.residual_base or "law"
     if base not in BASES:
         raise ValueError(f"backend 'jax' trains a residual on {list(BASES)} (pure functions of the observation), "
@@ -171,15 +179,16 @@ def _residual(hp: dict[str, Any], cfg: TrainConfig, env_id: str) -> dict[str, An
     unknown = sorted(set(settings) - {"gain", "variant"})
     if unknown:
         raise ValueError(f"the base {base!r} takes gain and variant, got {unknown}")
-    return {"scale": float(kwargs.get("scale", 0.2)), "observe_base": bool(kwargs.get("observe_base", False)),
-            "base": base, "base_settings": {"variant": settings.get("variant", "plain")},
-            "gain": float(settings.get("gain", 5.0))}
+    out = {"scale": float(kwargs.get("scale", 0.2)), "observe_base": bool(kwargs.get("observe_base", False)),
+           "base": base, "base_settings": {"variant": settings.get("variant", "plain")},
+           "gain": float(settings.get("gain", 5.0))}
+    return out if log_std is None else {**out, "log_std_init": float(log_std)}
 
 
 def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], None] | None = None,
                 on_validation: Callable[[dict[str, float]], None] | None = None,
                 names: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    """Train ``cfg`` (``algo`` ``"ppo"``, ``"residual_ppo"`` or ``"sac"``) once per seed, all seeds in one compiled
+    """Train ``cfg`` (``algo`` one of `JAX_ALGOS`) once per seed, all seeds in one compiled
     program, and return the sidecars in the order of ``seeds``.
 
     ``on_validation`` gets each validation point of the first seed (as `train`'s).  Seed ``s``
@@ -203,10 +212,11 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
     hp, cfg = hyperparams_of(cfg, env_id)
     if cfg.n_timesteps is not None:
         hp["n_timesteps"] = int(cfg.n_timesteps)
-    residual = _residual(hp, cfg, env_id) if cfg.algo == "residual_ppo" else None
-    algo = S if cfg.algo == "sac" else P
+    residual = _residual(hp, cfg, env_id) if cfg.algo.startswith("residual_") else None
+    sac = cfg.algo in ("sac", "residual_sac")
+    algo = S if sac else P
     settings = algo.settings_from(hp, f"{cfg.algo} hyperparameters of {env_id}")
-    activation, squash = ("ReLU", "tanh") if cfg.algo == "sac" else (settings.activation, "clip")
+    activation, squash = ("ReLU", "tanh") if sac else (settings.activation, "clip")
     env, env_params = make_jax(env_id, cfg.scenario, **cfg.env_kwargs)
     val_env, val_params = make_jax(env_id, cfg.scenario)
     if residual is not None:  # the same base, with its gain and variant, on the training and validation episodes
@@ -220,7 +230,7 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
     out_dir.mkdir(parents=True, exist_ok=True)
 
     run_chunk = jax.jit(jax.vmap(lambda ts: algo.iterations(env, env_params, settings, ts, chunk)))
-    if cfg.algo != "sac":
+    if not sac:
         def act(p: Any, obs: Any) -> Any:  # the Gaussian's mean, clipped to the action box as SB3 clips
             return jnp.clip(P.actor_apply(p, obs, activation), -1.0, 1.0)
     else:
@@ -264,7 +274,12 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
 
     ts = algo.init(jnp.stack([jax.random.key(s) for s in seeds]), env, env_params, settings)
     if residual is not None:  # the untrained agent is its base: the policy's mean action starts at zero
-        ts = ts._replace(params={**ts.params, "pi_out": jax.tree.map(jnp.zeros_like, ts.params["pi_out"])})
+        params = {**ts.params, "pi_out": jax.tree.map(jnp.zeros_like, ts.params["pi_out"])}
+        if "log_std_init" in residual:  # SAC: a small exploration noise around the base, the same everywhere
+            head = params["log_std_out"]
+            params["log_std_out"] = {"w": jnp.zeros_like(head["w"]),
+                                     "b": jnp.full_like(head["b"], residual["log_std_init"])}
+        ts = ts._replace(params=params)
     check(ts)
     t0 = time.perf_counter()
     step_chunk = run_chunk.lower(ts).compile()

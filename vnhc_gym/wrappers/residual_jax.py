@@ -1,5 +1,5 @@
-"""Residual learning on the pure-JAX environment: the compiled trainers' counterpart of
-[`ResidualVectorAction`][vnhc_gym.wrappers.ResidualVectorAction].
+"""Residual learning on the pure-JAX environment (the compiled backend's residual PPO and SAC): the
+counterpart of [`ResidualVectorAction`][vnhc_gym.wrappers.ResidualVectorAction].
 
 The environment receives ``clip(base(obs) + scale * clip(a, -1, 1), -1, 1)``, where ``base`` is a
 pure function of the observation the agent saw (`law_base`: the geometric law, plain or sampled-data,
