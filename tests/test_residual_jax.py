@@ -52,22 +52,37 @@ def test_the_residual_env_applies_base_plus_scaled_residual_and_shows_the_base()
         ResidualEnv.around(env, base, scale=1.5)
 
 
+def test_a_residual_sac_starts_at_its_base_with_the_files_exploration_noise() -> None:
+    """The SAC actor after `start_at_base`: mean 0 and log-std ``log_std_init`` at any observation
+    (the whole run is the PPO test's below, the same code but the networks)."""
+    from vnhc_gym.training import TrainConfig
+    from vnhc_gym.training import sac_jax as S
+    from vnhc_gym.training.config import hyperparams_of
+    from vnhc_gym.training.run_jax import _residual, start_at_base
+
+    cfg = TrainConfig(algo="residual_sac", env="usv", backend="jax")
+    hp, cfg = hyperparams_of(cfg, "vnhc_gym/USVStream-v1")
+    residual = _residual(hp, cfg, "vnhc_gym/USVStream-v1")
+    assert residual["log_std_init"] == -3.0 and residual["scale"] == 0.1
+    settings = S.settings_from(hp)  # the file's log_std_init is taken out: the rest is SAC's
+    params = start_at_base(S.init_params(jax.random.key(0), s=settings, obs_dim=16, act_dim=2), residual)
+    obs = jax.random.normal(jax.random.key(1), (32, 16)) * 3.0
+    mean, log_std = S.actor_apply(params, obs)
+    np.testing.assert_array_equal(np.asarray(mean), 0.0)
+    np.testing.assert_array_equal(np.asarray(log_std), -3.0)
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize(("algo", "steps", "residual"), [
-    ("residual_ppo", 16384, {"scale": 0.2, "observe_base": True, "base": "law", "base_settings": {"variant": "plain"},
-                             "gain": 5.0}),
-    ("residual_sac", 32 * 70, {"scale": 0.1, "observe_base": True, "base": "law", "base_settings": {"variant": "plain"},
-                               "gain": 5.0, "log_std_init": -3.0})])
-def test_an_untrained_residual_is_its_base_and_its_checkpoint_loads_as_a_residual_policy(
-        tmp_path, algo: str, steps: int, residual: dict) -> None:
+def test_an_untrained_residual_is_its_base_and_its_checkpoint_loads_as_a_residual_policy(tmp_path) -> None:
     from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate
     from vnhc_gym.training import TrainConfig, load_agent
     from vnhc_gym.training.run_jax import EPISODE_TIME, train_seeds, validation_scores
 
     (meta,) = train_seeds(
-        TrainConfig(algo=algo, env="sled", n_timesteps=steps, eval_points=1, eval_episodes=4,
+        TrainConfig(algo="residual_ppo", env="sled", n_timesteps=16384, eval_points=1, eval_episodes=4,
                     test_episodes=4, backend="jax", out=str(tmp_path)), [0])
-    assert meta["residual"] == residual
+    assert meta["residual"] == {"scale": 0.2, "observe_base": True, "base": "law",
+                                "base_settings": {"variant": "plain"}, "gain": 5.0}
     # At step 0 the policy's mean is 0: its validation score is the law's on the same episodes.
     env, params = make_jax("vnhc_gym/SledCruise-v1", "nominal")
     base = law_base(env, 5.0)

@@ -185,6 +185,18 @@ def _residual(hp: dict[str, Any], cfg: TrainConfig, env_id: str) -> dict[str, An
     return out if log_std is None else {**out, "log_std_init": float(log_std)}
 
 
+def start_at_base(params: dict[str, Any], residual: dict[str, Any]) -> dict[str, Any]:
+    """A residual agent's networks made exactly its base: the policy's mean head zeroed (its mean
+    action is 0 for any observation) and, for SAC (``log_std_init`` in ``residual``), the
+    log-standard-deviation head a constant (a small exploration noise around the base, the same
+    everywhere), as `vnhc_gym.training.run` does to SB3's and SBX's networks."""
+    out = {**params, "pi_out": jax.tree.map(jnp.zeros_like, params["pi_out"])}
+    if "log_std_init" in residual:
+        head = params["log_std_out"]
+        out["log_std_out"] = {"w": jnp.zeros_like(head["w"]), "b": jnp.full_like(head["b"], residual["log_std_init"])}
+    return out
+
+
 def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], None] | None = None,
                 on_validation: Callable[[dict[str, float]], None] | None = None,
                 names: Sequence[str] | None = None) -> list[dict[str, Any]]:
@@ -273,13 +285,8 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
             on_validation(curves[0][-1])
 
     ts = algo.init(jnp.stack([jax.random.key(s) for s in seeds]), env, env_params, settings)
-    if residual is not None:  # the untrained agent is its base: the policy's mean action starts at zero
-        params = {**ts.params, "pi_out": jax.tree.map(jnp.zeros_like, ts.params["pi_out"])}
-        if "log_std_init" in residual:  # SAC: a small exploration noise around the base, the same everywhere
-            head = params["log_std_out"]
-            params["log_std_out"] = {"w": jnp.zeros_like(head["w"]),
-                                     "b": jnp.full_like(head["b"], residual["log_std_init"])}
-        ts = ts._replace(params=params)
+    if residual is not None:
+        ts = ts._replace(params=start_at_base(ts.params, residual))
     check(ts)
     t0 = time.perf_counter()
     step_chunk = run_chunk.lower(ts).compile()
