@@ -73,6 +73,8 @@ CASES = {
                                                         ["'puck'", "terminations", "off_table"]),
     "impulse_mask of the wrong size": (("self.impulse_mask = np.ones(2)", "self.impulse_mask = np.ones(3)"),
                                        ["'puck'", "impulse_mask", "2 velocity entries"]),
+    "a controller's state of the wrong size": (("return 2.0 * obs[:4], p", "return 2.0 * obs[:5], p"),
+                                               ["'puck'", "controller_inputs (its state) returns shape (5,)", "(4,)"]),
 }
 
 
