@@ -76,9 +76,9 @@ def main() -> None:
                     help="run only these algorithms of the grid (the same runs, so a later full run skips them); "
                          "the report covers every finished run")
     ap.add_argument("--backend", choices=["sb3", "jax"], default="sb3",
-                    help="where PPO and SAC, from scratch and residual, train: sb3, or jax (compiled with their "
-                         "environment, a cell's seeds in one program, a residual on the cell's best law; reported as "
-                         "ppo-jax and so on beside sb3's rows); the other learners train on sb3")
+                    help="where the learners train: sb3, or jax (compiled with their environment, a cell's seeds in "
+                         "one program, a residual on the cell's best law; reported as ppo-jax and so on beside "
+                         "sb3's rows)")
     ap.add_argument("--out", default="results/train_compare")
     ap.add_argument("--executor", choices=["local", "ray"], default="local")
     ap.add_argument("--address", default=None)

@@ -133,6 +133,7 @@ class EnvState(NamedTuple):
     p_nominal: Array  #: (n_params,) what a controller is told (the task's own random parameters in it)
     obs: Array  #: the last observation (kept when a new one is not finite)
     time: Array  #: steps since the episode's start
+    history: Any = None  #: the observations before ``obs`` that an environment with memory shows (None: none)
 
 
 class Step(NamedTuple):

@@ -23,11 +23,12 @@ PLANNING_ALGOS = ("mpc",)
 REFERENCE_ALGOS = ("oracle", "informed_kalman")
 ALL_ALGOS = LEARNED_ALGOS + CLASSICAL_ALGOS + REFERENCE_ALGOS
 #: Where a learned run trains: Stable-Baselines3 (and SBX), or compiled with its environment
-#: (`vnhc_gym.training.run_jax`: PPO, SAC and residual PPO).  Classical runs have no backend.
+#: (`vnhc_gym.training.run_jax`: PPO, SAC, their residual variants, PPO with history).  Classical runs
+#: have no backend.
 SWEEP_BACKENDS = ("sb3", "jax")
 #: The learned agents the compiled backend trains; its residual agents' bases are the classical
 #: baselines that are pure functions of the observation (`COMPILED_BASES`: the law).
-COMPILED_ALGOS = ("ppo", "residual_ppo", "sac", "residual_sac")
+COMPILED_ALGOS = ("ppo", "residual_ppo", "ppo_history", "sac", "residual_sac")
 
 
 def label(algo: str, backend: str = "sb3") -> str:

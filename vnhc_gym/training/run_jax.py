@@ -54,6 +54,7 @@ from vnhc_gym.training.config import (
     resolve_env_id,
     run_stem,
 )
+from vnhc_gym.wrappers.history_jax import HistoryEnv
 from vnhc_gym.wrappers.residual_jax import BASES, ResidualEnv, law_base
 
 __all__ = ["JaxActor", "train_seeds"]
@@ -225,6 +226,10 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
     if cfg.n_timesteps is not None:
         hp["n_timesteps"] = int(cfg.n_timesteps)
     residual = _residual(hp, cfg, env_id) if cfg.algo.startswith("residual_") else None
+    frame_stack = int(hp.pop("frame_stack", 1))  # the history variant (RL Zoo's key; SB3's VecFrameStack)
+    if frame_stack > 1 and (residual is not None or cfg.algo != "ppo"):
+        raise ValueError(f"{cfg.algo} hyperparameters of {env_id}: the compiled backend stacks frames for PPO from "
+                         f"scratch only (frame_stack {frame_stack})")
     sac = cfg.algo in ("sac", "residual_sac")
     algo = S if sac else P
     settings = algo.settings_from(hp, f"{cfg.algo} hyperparameters of {env_id}")
@@ -234,6 +239,8 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
     if residual is not None:  # the same base, with its gain and variant, on the training and validation episodes
         env, val_env = (ResidualEnv.around(e, law_base(e, residual["gain"], residual["base_settings"]["variant"]),
                                            residual["scale"], residual["observe_base"]) for e in (env, val_env))
+    if frame_stack > 1:
+        env, val_env = HistoryEnv.around(env, frame_stack), HistoryEnv.around(val_env, frame_stack)
     horizon = max(1, round(EPISODE_TIME / float(val_params.dt)))
     val_keys = jnp.stack([jax.random.key(VALIDATION_SEED + i) for i in range(cfg.eval_episodes)])
     n_iter = settings.n_iterations
@@ -256,7 +263,7 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
               "config": {**asdict(cfg), "seed": s}, "hyperparams": jsonable(hp), "policy": "MlpPolicy",
               "activation": activation, "squash": squash, "normalize": jsonable(hp.get("normalize", False)),
               "residual": residual, "version": vnhc_gym.__version__, "code": code_fingerprint(), "obs_rms": None,
-              "frame_stack": 1, "checkpoint_format": CHECKPOINT_FORMATS[cfg.algo]}
+              "frame_stack": frame_stack, "checkpoint_format": CHECKPOINT_FORMATS[cfg.algo]}
              for s, stem in zip(seeds, stems, strict=True)]
     curves: list[list[dict[str, float]]] = [[] for _ in seeds]
     best = [-math.inf] * len(seeds)
