@@ -105,6 +105,18 @@ def scenario(request: pytest.FixtureRequest) -> str:
     return request.param
 
 
+#: The (id, scenario) pairs of the scenario-wide tests: every scenario on each ``-v1`` id, and each
+#: ``-v0`` id on the nominal scenario (a ``-v0`` id runs its ``-v1`` id's episodes with the raw reward,
+#: a function of phi alone, so the scenarios add nothing there that the ``-v1`` ids do not test).
+ID_SCENARIOS = [(i, s) for i in env_ids("v1") for s in sorted(SCENARIOS)] + [(i, "nominal") for i in env_ids("v0")]
+
+
+@pytest.fixture(params=ID_SCENARIOS, ids=lambda pair: f"{short_id(pair[0])}-{pair[1]}")
+def id_scenario(request: pytest.FixtureRequest) -> tuple[str, str]:
+    """One pair of `ID_SCENARIOS`: an id and a scenario to make it with."""
+    return request.param
+
+
 def _assert_same(a: Any, b: Any, path: str = "") -> None:
     """``a`` and ``b`` are the same to the last bit: same container structure, array dtypes and
     shapes, equal bytes (so NaN payloads and the sign of zero count), equal Python scalars."""

@@ -57,13 +57,13 @@ def test_bench_train_quick_prints_env_steps_per_second(tmp_path: Path) -> None:
     out = tmp_path / "bench"
     proc = _run("bench_train.py", out)
     lines = re.findall(r"^(\w+)\s+n_envs=\s*(\d+) threads=(\d+)\s+([\d.]+) k env-steps/s", proc.stdout, re.M)
-    assert sorted((task, int(n)) for task, n, _, _ in lines) == [("flocking", 8), ("usv", 8)]
+    assert [(task, int(n)) for task, n, _, _ in lines] == [("usv", 8)]
     assert all(float(rate) > 0 for *_, rate in lines)
     res = json.loads((out / "bench_train.json").read_text())
-    assert sorted((r["backend"], r["seeds"]) for r in res["backends"]) == [("jax", 1), ("jax", 2), ("sb3", 1)]
+    assert sorted((r["backend"], r["seeds"]) for r in res["backends"]) == [("jax", 2), ("sb3", 1)]
     assert all(r["steps_per_s"] > 0 for r in res["backends"])
     rows = res["throughput"]
-    assert len(rows) == 2 and all(r["steps_per_s"] > 0 and 0 < r["rollout_share"] < 1 for r in rows)
+    assert len(rows) == 1 and all(r["steps_per_s"] > 0 and 0 < r["rollout_share"] < 1 for r in rows)
     assert res["concurrent"] == []  # whole processes run in the full benchmark only
     assert (out / "bench_train.md").read_text() in proc.stdout
     # Where a compiled iteration spends its time: the environment alone takes part of the whole

@@ -193,7 +193,7 @@ def test_a_task_in_a_file_of_its_own_through_every_command(tmp_path: Path) -> No
 
 def test_the_command_keeps_compiled_programs_on_disk_and_the_package_does_not(tmp_path: Path) -> None:
     """``vnhc-gym`` fills JAX's compilation cache under ``$XDG_CACHE_HOME``, and a second run finds
-    what the first compiled; importing the package sets no cache folder; ``off`` turns it off."""
+    what the first compiled; ``off`` turns it off; importing the package sets no cache folder."""
     import os
 
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_") and k != "VNHC_GYM_JAX_CACHE"}
@@ -212,8 +212,13 @@ def test_the_command_keeps_compiled_programs_on_disk_and_the_package_does_not(tm
     assert entries  # compiled programs were written
     reproduce("second")
     assert {p.name for p in folder.iterdir()} == entries  # the second run compiled nothing new
-    reproduce("off", VNHC_GYM_JAX_CACHE="off", XDG_CACHE_HOME=str(tmp_path / "other"))
-    assert not (tmp_path / "other" / "vnhc_gym").exists()  # (matplotlib keeps its own cache there)
+    # Turned off, the command's setting step (the one the runs above went through) sets no folder.
+    code = "from vnhc_gym.cli import use_compilation_cache; import jax; " \
+           "print(use_compilation_cache(), jax.config.jax_compilation_cache_dir)"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          env={**env, "VNHC_GYM_JAX_CACHE": "off", "XDG_CACHE_HOME": str(tmp_path / "other")})
+    assert proc.returncode == 0 and proc.stdout.split() == ["None", "None"], proc.stderr
+    assert not (tmp_path / "other").exists()
     code = "import jax, vnhc_gym; print(jax.config.jax_compilation_cache_dir)"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
     assert proc.returncode == 0 and proc.stdout.strip() == "None", proc.stderr

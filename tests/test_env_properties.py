@@ -31,7 +31,9 @@ from vnhc_gym.envs.config import SCENARIOS
 from vnhc_gym.tasks import env_ids, task_of_env_id
 
 NAN, INF = float("nan"), float("inf")
-SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# 15 examples per id and test (each draws a scenario and up to 12 actions, or a whole set of
+# keywords), over every registered id.
+SETTINGS = settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 ALL_IDS = env_ids(None)
 
 
