@@ -67,6 +67,17 @@ def _register_tutorial_task() -> None:
 _register_tutorial_task()
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The long tests first: a module held to one xdist worker (its whole ``xdist_group``) and the
+    tests marked ``slow`` are the largest units of work, and the workers share the many short tests
+    best when those come last (in file order, a long unit that starts last keeps one worker busy
+    after the other has run out of tests)."""
+    def rank(item: pytest.Item) -> int:
+        return 0 if item.get_closest_marker("xdist_group") else 1 if item.get_closest_marker("slow") else 2
+
+    items.sort(key=rank)  # stable: each rank keeps the collection order
+
+
 def pytest_unconfigure(config: pytest.Config) -> None:
     """The run's compilation cache goes with the run (removed by the process that made it; the xdist
     workers inherit its path and leave it)."""
