@@ -231,6 +231,12 @@ def test_a_compiled_cell_trains_its_seeds_in_one_program_and_is_reported_beside_
     assert jax_row["kind"] == sb3_row["kind"] == "learned" and jax_row["runs"] == sb3_row["runs"] == 2
     pooled = np.concatenate([_test_metrics(out, s)["score"] for s in specs])
     assert jax_row["score"] == pytest.approx(float(np.mean(pooled)), rel=1e-12) and "poi" in jax_row
+    # backends.json places the compiled score against the SB3 runs' interval, as the two rows say.
+    (entry,) = json.loads((out / "report" / "backends.json").read_text())
+    lo, hi, score = sb3_row["low"], sb3_row["high"], jax_row["score"]
+    assert entry["placement"] == ("below" if score < lo else "above" if score > hi else "within")
+    assert entry["overlap"] == (jax_row["low"] <= hi and lo <= jax_row["high"])
+    assert "ppo on jax against SB3, 1 cell:" in (out / "report" / "backends.md").read_text()
 
 
 @pytest.mark.slow

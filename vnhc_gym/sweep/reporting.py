@@ -11,7 +11,7 @@ from typing import Any
 from vnhc_gym.sweep.cells import _cells, _rows
 from vnhc_gym.sweep.figures import _figures, _verdict_figure
 from vnhc_gym.sweep.records import load_runs
-from vnhc_gym.sweep.verdicts import _write_headline, _write_tables
+from vnhc_gym.sweep.verdicts import _write_backends, _write_headline, _write_tables
 
 #: Bootstrap replicates of every interval of a report: rliable's default.  A verdict compares an end
 #: of an interval with 0.5, and with 2000 replicates the Monte Carlo error of that end (about 0.005
@@ -37,7 +37,9 @@ def report(out: str | Path, reps: int = REPORT_REPS, log: Callable[[str], None] 
     each interval (`REPORT_REPS` by default).
     Files: ``comparison.{json,csv,md}`` (every row), ``headline.md`` (one line a cell: the oracle,
     the best classical, the best learned and the verdict), ``verdict.png`` (the same at a glance),
-    ``learning_curves_<env>.png`` and ``performance_profile.png``.
+    ``learning_curves_<env>.png``, ``performance_profile.png``, and ``backends.{md,json}`` when a
+    learner has runs on both backends in a cell (the compiled runs' score against the SB3 runs'
+    interval, cell by cell).
     """
     runs = load_runs(out)
     dest = Path(out) / "report"
@@ -50,6 +52,7 @@ def report(out: str | Path, reps: int = REPORT_REPS, log: Callable[[str], None] 
     (dest / "comparison.json").write_text(json.dumps(rows, indent=1))
     _write_tables(rows, dest)
     verdicts = _write_headline(rows, dest)
+    _write_backends(rows, dest)
     figures = [*_verdict_figure(rows, dest), *_figures(cells, dest)]
     log(f"report: {len(runs)} runs, {len(cells)} cells -> {dest}")
     return {"rows": rows, "verdicts": verdicts, "figures": figures, "codes": codes}

@@ -1,6 +1,7 @@
 """The written verdicts of a sweep's report: `verdict` (a cell's winner, from the best learned agent's
 probability of improvement), the reasons behind it, ``headline.md`` and ``verdicts.json`` (a line a
-cell), and the tables ``comparison.csv`` and ``comparison.md`` (a row per cell and algorithm)."""
+cell), the tables ``comparison.csv`` and ``comparison.md`` (a row per cell and algorithm), and
+``backends.md`` (each learner trained on both backends, cell by cell)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from vnhc_gym.sweep.specs import RESIDUAL_ALGOS
+from vnhc_gym.sweep.specs import RESIDUAL_ALGOS, SWEEP_BACKENDS, algo_of, label
 
 
 def _fmt(x: float | None) -> str:
@@ -70,6 +71,50 @@ def _write_tables(rows: list[dict[str, Any]], dest: Path) -> None:
                          f"{_fmt(r['iqm_abs_phi_sf'])} | {_poi(r) if 'poi' in r else ''} | {steps} | {secs} |")
         lines.append("")
     (dest / "comparison.md").write_text("\n".join(lines))
+
+
+def placement(score: float, low: float, high: float) -> str:
+    """Where a score falls against an interval: ``"below"``, ``"within"`` (ends included) or ``"above"``."""
+    return "below" if score < low else "above" if score > high else "within"
+
+
+def _write_backends(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, Any]]:
+    """``backends.{md,json}``: every learner with runs on Stable-Baselines3 and on another backend in a
+    cell, the other backend's score placed against the SB3 runs' interval (both intervals over
+    training runs, then episodes), and whether the two intervals overlap.  Nothing is written when
+    no cell has both.  Returns the entries."""
+    by = {(r["env"], r["scenario"], r["algo"]): r for r in rows}
+    entries = []
+    for r in rows:
+        backend = r["algo"].rsplit("-", 1)[-1]
+        if backend not in SWEEP_BACKENDS or r["algo"] == algo_of(r["algo"]):
+            continue
+        sb3 = by.get((r["env"], r["scenario"], label(algo_of(r["algo"]))))
+        if sb3 is None:
+            continue
+        entries.append({"env": r["env"], "scenario": r["scenario"], "algo": algo_of(r["algo"]), "backend": backend,
+                        "sb3": {k: sb3[k] for k in ("score", "low", "high", "runs")},
+                        "other": {k: r[k] for k in ("score", "low", "high", "runs")},
+                        "placement": placement(r["score"], sb3["low"], sb3["high"]),
+                        "overlap": bool(r["low"] <= sb3["high"] and sb3["low"] <= r["high"])})
+    if not entries:
+        return entries
+    (dest / "backends.json").write_text(json.dumps(entries, indent=1))
+    lines = ["| task | scenario | learner | SB3: score [95% CI] (runs) | other backend: score [95% CI] (runs) "
+             "| its score against SB3's interval | intervals overlap |", "|---|---|---|---|---|---|---|"]
+    for e in entries:
+        lines.append(f"| {e['env']} | {e['scenario']} | {e['algo']} | {_score(e['sb3'])} ({e['sb3']['runs']}) | "
+                     f"{e['backend']}: {_score(e['other'])} ({e['other']['runs']}) | {e['placement']} | "
+                     f"{'yes' if e['overlap'] else 'no'} |")
+    for (algo, backend) in sorted({(e["algo"], e["backend"]) for e in entries}):
+        these = [e for e in entries if (e["algo"], e["backend"]) == (algo, backend)]
+        counts = ", ".join(f"{sum(e['placement'] == p for e in these)} {p}" for p in ("below", "within", "above"))
+        apart = sum(not e["overlap"] for e in these)
+        lines.append(f"\n{algo} on {backend} against SB3, {len(these)} cell{'' if len(these) == 1 else 's'}: "
+                     f"{counts} SB3's interval; "
+                     f"the intervals are apart in {apart}.")
+    (dest / "backends.md").write_text("\n".join(lines) + "\n")
+    return entries
 
 
 def verdict(best_learned: dict[str, Any] | None, best: dict[str, Any] | None) -> tuple[str, str]:
