@@ -162,15 +162,32 @@ def test_the_numpy_actor_is_the_networks_mean_clipped() -> None:
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
 
 
+# ---------------------------------------------------------------------------------------------- validations
+def test_validations_come_after_the_iterations_sb3_validates_after() -> None:
+    """SB3's callback validates after the first whole rollout that reaches each multiple of
+    ``n_timesteps // eval_points`` steps: the k-th after iteration ceil(k * every / rollout) while
+    those differ, and at most once a rollout."""
+    from vnhc_gym.training.run_jax import validation_iterations
+
+    # 2 M steps in rollouts of 16 384 (123 of them), 20 validations: one every 100 000 steps.
+    assert validation_iterations(123, 16384, 2_000_000, 20) == [math.ceil(k * 100_000 / 16384) for k in range(1, 21)]
+    # Rollouts longer than the validations' spacing: one validation a rollout.
+    assert validation_iterations(4, 10_000, 40_000, 8) == [1, 2, 3, 4]
+    # The run's last iteration always ends with one.
+    assert validation_iterations(5, 16384, 5 * 16384, 1) == [5]
+    assert validation_iterations(7, 1000, 7000, 2) == [4, 7]
+
+
 # ---------------------------------------------------------------------------------------------- whole runs
 @pytest.fixture(scope="module")
 def usv_runs(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """Two seeds trained in one program and the second alone, 5 iterations each (81 920 steps)."""
+    """Two seeds trained in one program and the second alone, 5 iterations each (81 920 steps),
+    validated at the start, after 3 iterations and after 5 (chunks of unequal length)."""
     from vnhc_gym.training.config import TrainConfig
     from vnhc_gym.training.run_jax import train_seeds
 
     out = tmp_path_factory.mktemp("ppo_jax")
-    cfg = TrainConfig(algo="ppo", env="usv", n_timesteps=5 * 16384, eval_points=1, eval_episodes=5,
+    cfg = TrainConfig(algo="ppo", env="usv", n_timesteps=5 * 16384, eval_points=2, eval_episodes=5,
                       test_episodes=5, backend="jax")
     both = train_seeds(cfg.__class__(**{**cfg.__dict__, "out": str(out / "both")}), [0, 1])
     alone = train_seeds(cfg.__class__(**{**cfg.__dict__, "out": str(out / "alone")}), [1])
@@ -181,7 +198,7 @@ def usv_runs(tmp_path_factory: pytest.TempPathFactory) -> dict:
 def test_a_short_compiled_run_improves_the_validation_score(usv_runs: dict) -> None:
     for meta in usv_runs["both"]:
         curve = meta["curve"]
-        assert curve[0]["steps"] == 0 and curve[-1]["steps"] == 5 * 16384
+        assert [p["steps"] for p in curve] == [0, 3 * 16384, 5 * 16384]  # SB3's: 40 960 steps reached after 3
         # Gains after 5 iterations, 8 seeds, 10 episodes: 0.05 to 0.15 (0.04 to 0.23 with
         # jax.random.permutation's minibatches): a seed that does not learn stays within 0.01.
         assert curve[-1]["score"] > curve[0]["score"] + 0.03, curve

@@ -382,13 +382,16 @@ def iteration(env: FunctionalEnv, env_params: EnvParams, s: PPOSettings, ts: Tra
     return new, jnp.mean(tr.raw_reward)
 
 
-def iterations(env: FunctionalEnv, env_params: EnvParams, s: PPOSettings, ts: TrainState, count: int
-               ) -> tuple[TrainState, Array]:
-    """``count`` iterations (those past the run's last one do nothing, so that every chunk of a run
-    is the same program).  Returns the state and each iteration's mean raw reward."""
+def iterations(env: FunctionalEnv, env_params: EnvParams, s: PPOSettings, ts: TrainState, count: int,
+               until: Array | int | None = None) -> tuple[TrainState, Array]:
+    """``count`` iterations, of which those at or past ``until`` (an iteration number, a traced
+    value; default the run's end) or past the run's last one do nothing, so that every chunk of a
+    run is the same program whatever its length.  Returns the state and each iteration's mean raw
+    reward (NaN for those that did nothing)."""
+    stop = s.n_iterations if until is None else jnp.minimum(s.n_iterations, until)
 
     def one(ts: TrainState, _: None) -> tuple[TrainState, Array]:
-        return jax.lax.cond(ts.iteration < s.n_iterations, partial(iteration, env, env_params, s),
+        return jax.lax.cond(ts.iteration < stop, partial(iteration, env, env_params, s),
                             lambda t: (t, jnp.float32(jnp.nan)), ts)
 
     return jax.lax.scan(one, ts, None, length=count)

@@ -3,7 +3,8 @@ seeds in one program, validated while they learn and tested on held-out episodes
 an SB3 run.
 
 ``vnhc-gym train --backend jax --algo ppo --env usv --seeds 0 1 2`` (or `train_seeds`) trains the
-seeds side by side (``jax.vmap`` over their keys), in chunks of iterations between validations.
+seeds side by side (``jax.vmap`` over their keys), in chunks of iterations between validations,
+which come after the same iterations as an SB3 run's (`validation_iterations`).
 Each seed writes what an SB3 run writes, under the same stem (``<task>-<scenario>-<algo>-s<seed>``):
 
 * ``<stem>.npz``: the networks with the best validation score, ``<stem>-final.npz`` those at the
@@ -144,6 +145,23 @@ def validation_scores(env: Any, env_params: Any, act: Callable[[Any], Any], keys
     return jax.vmap(episode)(keys)
 
 
+def validation_iterations(n_iterations: int, rollout: int, n_timesteps: int, eval_points: int) -> list[int]:
+    """The iterations after which a run validates: SB3's rule (`vnhc_gym.training.run`), so that
+    both backends choose their checkpoints at the same env steps.  A validation follows the first
+    whole rollout that reaches each multiple of ``n_timesteps // eval_points`` env steps (at most
+    one a rollout), and the run's last iteration; the start is validated as well, before these."""
+    every = max(1, n_timesteps // max(1, eval_points))
+    points, nxt = [], every
+    for i in range(1, n_iterations + 1):
+        if i * rollout >= nxt:
+            while nxt <= i * rollout:
+                nxt += every
+            points.append(i)
+    if not points or points[-1] != n_iterations:
+        points.append(n_iterations)
+    return points
+
+
 def _save(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """Written whole or not at all: a run stopped mid-write never leaves a truncated checkpoint."""
     tmp = path.with_name(path.name + ".tmp.npz")
@@ -243,12 +261,13 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
         env, val_env = HistoryEnv.around(env, frame_stack), HistoryEnv.around(val_env, frame_stack)
     horizon = max(1, round(EPISODE_TIME / float(val_params.dt)))
     val_keys = jnp.stack([jax.random.key(VALIDATION_SEED + i) for i in range(cfg.eval_episodes)])
-    n_iter = settings.n_iterations
-    chunk = max(1, math.ceil(n_iter / max(1, cfg.eval_points)))
+    points = validation_iterations(settings.n_iterations, settings.rollout, settings.n_timesteps, cfg.eval_points)
+    chunk = max(b - a for a, b in zip([0, *points], points, strict=False))  # one program: the longest stretch
     out_dir = Path(cfg.out)
     out_dir.mkdir(parents=True, exist_ok=True)
 
-    run_chunk = jax.jit(jax.vmap(lambda ts: algo.iterations(env, env_params, settings, ts, chunk)))
+    run_chunk = jax.jit(jax.vmap(lambda ts, until: algo.iterations(env, env_params, settings, ts, chunk, until),
+                                 in_axes=(0, None)))
     if not sac:
         def act(p: Any, obs: Any) -> Any:  # the Gaussian's mean, clipped to the action box as SB3 clips
             return jnp.clip(P.actor_apply(p, obs, activation), -1.0, 1.0)
@@ -296,10 +315,10 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
         ts = ts._replace(params=start_at_base(ts.params, residual))
     check(ts)
     t0 = time.perf_counter()
-    step_chunk = run_chunk.lower(ts).compile()
+    step_chunk = run_chunk.lower(ts, jnp.int32(0)).compile()
     compile_wall = time.perf_counter() - t0
-    while int(np.asarray(ts.iteration)[0]) < n_iter:
-        ts, _ = step_chunk(ts)
+    for until in points:
+        ts, _ = step_chunk(ts, jnp.int32(until))
         jax.block_until_ready(ts)  # else the chunk's time would be counted in the validation's
         check(ts)
     train_wall = time.perf_counter() - t_start - t_eval

@@ -287,10 +287,12 @@ def _gradient_step(s: SACSettings, target_entropy: float, ln: Learner, batch: Bu
     return Learner(params={**actor, **critics, "log_alpha": log_alpha}, target=target, opt=(opt_pi, opt_q, opt_alpha))
 
 
-def iteration(env: FunctionalEnv, env_params: EnvParams, s: SACSettings, ts: TrainState) -> tuple[TrainState, Array]:
+def iteration(env: FunctionalEnv, env_params: EnvParams, s: SACSettings, ts: TrainState,
+              until: Array | int | None = None) -> tuple[TrainState, Array]:
     """One iteration of one seed: ``train_freq`` steps of the ``n_envs`` episodes into the buffer
     (random actions until ``learning_starts`` steps are done), then ``gradient_steps`` updates once
-    more than ``learning_starts`` steps are done; nothing once the run's iterations are done.
+    more than ``learning_starts`` steps are done; nothing once the run's iterations are done, or at
+    or past iteration ``until`` (a traced value; default the run's end).
 
     Why no ``lax.cond`` on those phases: under the ``jax.vmap`` over seeds a branch on each seed's
     count becomes a select of both results, and a select of the whole state copies the replay
@@ -299,7 +301,7 @@ def iteration(env: FunctionalEnv, env_params: EnvParams, s: SACSettings, ts: Tra
     random phase are computed and dropped (one iteration in a hundred at the shipped settings).
     """
     index = ts.iteration
-    active = index < s.n_iterations
+    active = index < (s.n_iterations if until is None else jnp.minimum(s.n_iterations, until))
     target_entropy = -float(env.num_actions) if s.target_entropy is None else s.target_entropy
     key, k_roll, k_grad = jax.random.split(ts.key, 3)
     random_phase = index * s.rollout < s.learning_starts
@@ -339,11 +341,12 @@ def iteration(env: FunctionalEnv, env_params: EnvParams, s: SACSettings, ts: Tra
     return ts, jnp.where(active, jnp.mean(rows.reward), jnp.nan)
 
 
-def iterations(env: FunctionalEnv, env_params: EnvParams, s: SACSettings, ts: TrainState, count: int
-               ) -> tuple[TrainState, Array]:
-    """``count`` iterations (those past the run's last one do nothing, so that every chunk of a run
-    is the same program).  Returns the state and each iteration's mean reward."""
-    return jax.lax.scan(lambda t, _: iteration(env, env_params, s, t), ts, None, length=count)
+def iterations(env: FunctionalEnv, env_params: EnvParams, s: SACSettings, ts: TrainState, count: int,
+               until: Array | int | None = None) -> tuple[TrainState, Array]:
+    """``count`` iterations, of which those at or past ``until`` (a traced value; default the run's
+    end) or past the run's last one do nothing, so that every chunk of a run is the same program
+    whatever its length.  Returns the state and each iteration's mean reward."""
+    return jax.lax.scan(lambda t, _: iteration(env, env_params, s, t, until), ts, None, length=count)
 
 
 def to_numpy(params: Params) -> dict[str, np.ndarray]:
