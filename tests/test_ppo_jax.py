@@ -178,6 +178,28 @@ def test_validations_come_after_the_iterations_sb3_validates_after() -> None:
     assert validation_iterations(7, 1000, 7000, 2) == [4, 7]
 
 
+@pytest.mark.parametrize("env_id, scenario", [("vnhc_gym/USVStream-v1", "disturbance"),
+                                               ("vnhc_gym/SpacecraftPoint-v1", "noisy")])
+def test_the_validation_episodes_are_those_an_sb3_run_validates_on(env_id: str, scenario: str) -> None:
+    """In float64 (as the trainer runs them) the compiled validation's episodes, kicks and
+    observation noise included, are the Gymnasium environment's of the validation seeds: the same
+    policy scores the same on each as `evaluate` measures it."""
+    from vnhc_gym.baselines import ZeroPolicy
+    from vnhc_gym.envs.functional import make_jax
+    from vnhc_gym.evaluation import VALIDATION_SEED, evaluate
+    from vnhc_gym.training.run_jax import EPISODE_TIME, validation_scores
+
+    env, params = make_jax(env_id, scenario)
+    horizon = round(EPISODE_TIME / float(params.dt))
+    keys = jnp.stack([jax.random.key(VALIDATION_SEED + i) for i in range(4)])
+    with jax.enable_x64(True):
+        got, alive = validation_scores(env, params, lambda o: jnp.zeros(env.num_actions, jnp.float32), keys, horizon)
+    want = evaluate(ZeroPolicy, env_id, scenario, n_episodes=4, seed=VALIDATION_SEED).metrics
+    np.testing.assert_allclose(np.asarray(got), want["score"], rtol=1e-9)
+    np.testing.assert_array_equal(np.asarray(alive, dtype=float), want["success"])
+    assert np.ptp(want["score"]) > 0  # four different episodes
+
+
 # ---------------------------------------------------------------------------------------------- whole runs
 @pytest.fixture(scope="module")
 def usv_runs(tmp_path_factory: pytest.TempPathFactory) -> dict:

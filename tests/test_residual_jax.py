@@ -83,12 +83,14 @@ def test_an_untrained_residual_is_its_base_and_its_checkpoint_loads_as_a_residua
                     test_episodes=4, backend="jax", out=str(tmp_path)), [0])
     assert meta["residual"] == {"scale": 0.2, "observe_base": True, "base": "law",
                                 "base_settings": {"variant": "plain"}, "gain": 5.0}
-    # At step 0 the policy's mean is 0: its validation score is the law's on the same episodes.
+    # At step 0 the policy's mean is 0: its validation score is the law's on the same episodes (in
+    # float64, as the trainer validates).
     env, params = make_jax("vnhc_gym/SledCruise-v1", "nominal")
     base = law_base(env, 5.0)
     keys = jax.numpy.stack([jax.random.key(VALIDATION_SEED + i) for i in range(4)])
-    scores, _ = jax.jit(lambda k: validation_scores(env, params, lambda o: base(o, params.nominal, params), k,
-                                                    round(EPISODE_TIME / float(params.dt))))(keys)
+    with jax.enable_x64(True):
+        scores, _ = jax.jit(lambda k: validation_scores(env, params, lambda o: base(o, params.nominal, params), k,
+                                                        round(EPISODE_TIME / float(params.dt))))(keys)
     assert meta["curve"][0]["score"] == pytest.approx(float(np.mean(scores)), rel=1e-6)
     path = tmp_path / f"{meta['name']}.npz"
     side = json.loads(path.with_suffix(".json").read_text())

@@ -18,10 +18,10 @@ Each seed writes what an SB3 run writes, under the same stem (``<task>-<scenario
   ``steps_per_second_compiled`` leaves the compilation out.
 
 Validation episodes are drawn by the functional environment with the keys
-``jax.random.key(VALIDATION_SEED + i)`` (the Gymnasium environment's streams differ, so they are
-other episodes of the same distribution); the test runs the best networks on the Gymnasium
-environment's test seeds with `evaluate`, exactly as for an SB3 run, so that both backends' test
-scores are comparable.
+``jax.random.key(VALIDATION_SEED + i)``, in float64: the episodes a Gymnasium environment seeded
+with ``VALIDATION_SEED + i`` runs, those an SB3 run validates on (`validation_scores`); the test
+runs the best networks on the Gymnasium environment's test seeds with `evaluate`, exactly as for
+an SB3 run, so that both backends' test scores are comparable.
 """
 
 from __future__ import annotations
@@ -125,21 +125,30 @@ def validation_scores(env: Any, env_params: Any, act: Callable[[Any], Any], keys
                       ) -> tuple[Any, Any]:
     """A deterministic policy's ``score`` (the return over ``horizon`` steps per step, the steps
     after an early end counting 0) and whether it finished, on the episodes drawn with ``keys``;
-    ``act`` maps an observation to the policy's action.  Pure JAX: compiled with the run."""
+    ``act`` maps an observation to the policy's action.  Pure JAX: compiled with the run.
+
+    Each episode's random draws follow the key chain of a Gymnasium environment seeded with the
+    key's seed (`vnhc_gym.envs.runtime`: one split for the start, then one a step), so that in
+    float64, with ``jax.random.key(VALIDATION_SEED + i)``, these are the episodes `evaluate`
+    validates an SB3 run on."""
 
     def episode(key: Any) -> tuple[Any, Any]:
-        k_reset, k_steps = jax.random.split(key)
-        obs, state = env.reset(k_reset, env_params)
+        key, k_reset = jax.random.split(key)
+        # `initial`, not the jitted `reset`: the validation is traced in float64 and the training
+        # program in float32, and a jitted method traced under both gave the float32 program a
+        # float64 operand (its compilation failed).
+        obs, state = env.initial(k_reset, env_params)
 
-        def step(carry: tuple[Any, ...], k: Any) -> tuple[tuple[Any, ...], None]:
-            state, obs, total, alive = carry
+        def step(carry: tuple[Any, ...], _: None) -> tuple[tuple[Any, ...], None]:
+            key, state, obs, total, alive = carry
+            key, k = jax.random.split(key)
             new, out = env.transition(k, state, act(obs.astype(jnp.float32)), env_params)
             total = total + jnp.where(alive, out.reward, 0.0)
-            return (new, out.obs, total, alive & ~out.terminated), None
+            return (key, new, out.obs, total, alive & ~out.terminated), None
 
         zero = jnp.zeros((), obs.dtype)
-        (_, _, total, alive), _ = jax.lax.scan(step, (state, obs, zero, jnp.ones((), bool)),
-                                               jax.random.split(k_steps, horizon))
+        (_, _, _, total, alive), _ = jax.lax.scan(step, (key, state, obs, zero, jnp.ones((), bool)), None,
+                                                  length=horizon)
         return total / horizon, alive
 
     return jax.vmap(episode)(keys)
@@ -274,8 +283,15 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
     else:
         def act(p: Any, obs: Any) -> Any:  # the squashed Gaussian's mean
             return jnp.tanh(S.actor_apply(p, obs)[0])
-    validate = jax.jit(jax.vmap(lambda p: validation_scores(val_env, val_params, lambda o: act(p, o), val_keys,
-                                                            horizon)))
+    validate_x64 = jax.jit(jax.vmap(lambda p: validation_scores(val_env, val_params, lambda o: act(p, o), val_keys,
+                                                                horizon)))
+
+    def validate(params: Any) -> Any:
+        # In float64, the Gymnasium environment's precision: its random draws are then the same, and
+        # these are the episodes an SB3 run validates on (the networks still act in float32).
+        with jax.enable_x64(True):
+            return validate_x64(params)
+
     stems = list(names) if names is not None else [run_stem(replace(cfg, seed=s), env_id) for s in seeds]
     metas = [{"format": SIDECAR_FORMAT, "backend": "jax", "name": stem, "algo": cfg.algo, "env_id": env_id,
               "scenario": cfg.scenario, "seed": s, "n_envs": settings.n_envs, "n_timesteps": settings.n_timesteps,
