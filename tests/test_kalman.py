@@ -16,7 +16,14 @@ from scipy.linalg import solve_discrete_are
 
 import vnhc_gym.tasks
 from vnhc_gym.baselines import GeometricController
-from vnhc_gym.baselines.kalman import InformedKalmanController, KalmanController, correct, predict, process_noise
+from vnhc_gym.baselines.kalman import (
+    EKF,
+    InformedKalmanController,
+    KalmanController,
+    correct,
+    predict,
+    process_noise,
+)
 from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint, derive_law
 from vnhc_gym.mechanics.printing import print_module
 
@@ -42,17 +49,17 @@ def test_covariance_converges_to_the_discrete_riccati_solution() -> None:
     m = np.array([[0.0, 1.0], [-k, 0.0]]) * dt
     a = np.eye(2) + m + m @ m / 2 + m @ m @ m / 6 + m @ m @ m @ m / 24  # RK4 on a linear system
     h = np.array([[1.0, 0.0]])
-    q_mat = process_noise(1, dt, q)
-    x, cov = np.array([[0.3, -0.2]]), np.eye(2)[None] * 0.1
     rng = np.random.default_rng(0)
     with jax.enable_x64(True):
+        q_mat = np.asarray(process_noise(1, dt, q))
+        x, cov = jnp.array([0.3, -0.2]), jnp.eye(2) * 0.1
         step = jax.jit(lambda x_, c_: predict(osc, dt, 1, (), x_, c_, jnp.asarray(osc.PARAM_DEFAULTS), jnp.zeros(1),
                                               q_mat))
         for _ in range(400):
-            pred, prior = (np.asarray(v)[None] for v in step(x[0], cov[0]))
-            z = np.array([[rng.normal(0.0, np.sqrt(r))]])
-            x, cov = correct(pred, prior, pred[:, :1], np.broadcast_to(h, (1, 1, 2)), z, r)
-    np.testing.assert_allclose(prior[0], solve_discrete_are(a.T, h.T, q_mat, np.array([[r]])), rtol=1e-8)
+            pred, prior = step(x, cov)
+            z = np.array([rng.normal(0.0, np.sqrt(r))])
+            x, cov = correct(pred, prior, pred[:1], jnp.asarray(h), z, r)
+    np.testing.assert_allclose(prior, solve_discrete_are(a.T, h.T, q_mat, np.array([[r]])), rtol=1e-8)
 
 
 def test_the_estimate_beats_the_raw_observation_under_the_scenarios_noise() -> None:
@@ -254,3 +261,40 @@ def test_under_mismatch_the_informed_filter_reads_the_boats_true_phi() -> None:
         obs, _, terminated, _, info = env.step(action)
         assert not terminated
     assert max(gaps) > 1e-2  # the chart differs from the truth, so reading phi off the observation would not do
+
+
+@pytest.mark.parametrize("env_id", ["vnhc_gym/USVStream-v1", SLED, "vnhc_gym/CartPoleBalance-v1"],
+                         ids=lambda e: e.removeprefix("vnhc_gym/"))
+def test_the_pure_filter_estimates_what_the_controller_estimates(env_id: str) -> None:
+    """`EKF` (one episode, exact Jacobians, vmapped) against `KalmanController` (numpy, central
+    differences) on the same noisy observations and applied forces: the boat (filtered current,
+    moving frame, unmeasured entries), the sled (moving frame), the cart-pole (neither)."""
+    venv = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point", scenario="noisy")
+    ctrl = KalmanController(venv, gain=10.0, q=0.01)
+    task = ctrl.task
+    ekf = EKF.of(task, q=0.01, q_params=ctrl.q_params)
+    sigma, dt = float(task.config.obs_noise), float(task.config.dt)
+    obs, _ = venv.reset(seed=7)
+    f, u = None, None
+    with jax.enable_x64(True):
+        start = jax.jit(jax.vmap(ekf.start, in_axes=(0, None, None, None)))
+        update = jax.jit(jax.vmap(ekf.update, in_axes=(0, 0, 0, None, None, None, None)))
+        for _ in range(30):
+            action, _ = ctrl.predict(obs)
+            o = np.asarray(obs, dtype=np.float64)
+            f = start(o, task.nominal, sigma, task.args) if f is None else update(f, o, u, task.nominal, dt, sigma,
+                                                                                   task.args)
+            x, p = jax.vmap(ekf.estimate)(f)
+            want_x, want_p = ctrl._estimate
+            np.testing.assert_allclose(np.asarray(x), want_x, rtol=1e-7, atol=1e-8)
+            np.testing.assert_allclose(np.asarray(p), want_p, rtol=1e-7, atol=1e-8)
+            u = np.asarray(action, dtype=np.float64) * ctrl.force_bound
+            obs, _, terminated, truncated, _ = venv.step(action)
+            assert not np.any(terminated | truncated)
+    assert np.abs(np.asarray(x) - task.controller_inputs(np.asarray(obs))[0]).max() > 0  # not the raw read-back
+
+
+def test_the_pure_filter_names_a_task_without_a_chart() -> None:
+    task = gym.make(SLED).unwrapped.task
+    with pytest.raises(ValueError, match="q"):
+        EKF.of(task, q=-1.0)

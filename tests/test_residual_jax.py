@@ -115,3 +115,72 @@ def test_a_cells_tuned_law_becomes_the_compiled_residuals_base() -> None:
     assert got == {"scale": 0.2, "observe_base": True, "base": "tuned_law", "base_settings": {"variant": "sampled"},
                    "gain": 20.0}
     assert "env_wrapper" not in hp  # taken out: the rest is PPO's
+
+
+def test_a_residual_on_the_kalman_base_starts_at_the_filters_score() -> None:
+    """The compiled residual environment on `kalman_base` with a zero residual is the numpy
+    `KalmanController` on the same validation episodes (the boat under noise: a filtered current,
+    a moving frame), and not the plain law."""
+    from vnhc_gym.baselines import KalmanController
+    from vnhc_gym.evaluation import VALIDATION_SEED, evaluate
+    from vnhc_gym.training.run_jax import EPISODE_TIME, validation_scores
+    from vnhc_gym.wrappers.residual_jax import kalman_base
+
+    env_id, settings = "vnhc_gym/USVStream-v1", {"gain": 10.0, "variant": "sampled", "q": 0.01}
+    env, params = make_jax(env_id, "noisy")
+    task = gym.make(env_id, scenario="noisy").unwrapped.task
+    res = ResidualEnv.around(env, kalman_base(env, task, **settings), scale=0.2, observe_base=True)
+    keys = jax.numpy.stack([jax.random.key(VALIDATION_SEED + i) for i in range(3)])
+    horizon = round(EPISODE_TIME / float(params.dt))
+    with jax.enable_x64(True):
+        got, _ = jax.jit(lambda k: validation_scores(res, params, lambda o: jax.numpy.zeros(1), k, horizon))(keys)
+    want = evaluate(lambda e: KalmanController(e, **settings), env_id, "noisy", n_episodes=3,
+                    seed=VALIDATION_SEED).metrics["score"]
+    law = evaluate(lambda e: GeometricController(e, gain=10.0, variant="sampled"), env_id, "noisy", n_episodes=3,
+                   seed=VALIDATION_SEED).metrics["score"]
+    np.testing.assert_allclose(np.asarray(got), want, rtol=1e-6)
+    assert np.all(np.abs(want - law) > 1e-3)
+    # Step by step on one episode: the agent sees (obs, the filter's belief, the base's action), as
+    # the numpy residual wrappers show a Kalman base's.
+    genv = gym.make(env_id, scenario="noisy")
+    ctrl = KalmanController(genv, **settings)
+    obs, _ = genv.reset(seed=VALIDATION_SEED)
+    key, k_reset = jax.random.split(jax.random.key(VALIDATION_SEED))
+    with jax.enable_x64(True):
+        seen, state = res.initial(k_reset, params)
+        transition = jax.jit(res.transition)
+        for _ in range(10):
+            action, _ = ctrl.predict(obs)
+            d = obs.shape[0]
+            np.testing.assert_allclose(np.asarray(seen[:d]), obs, atol=1e-6)
+            np.testing.assert_allclose(np.asarray(seen[d:2 * d]), ctrl.belief(obs[None])[0], atol=1e-6)
+            np.testing.assert_allclose(np.asarray(seen[2 * d:]), action, atol=1e-6)
+            obs, *_ = genv.step(action)
+            key, k = jax.random.split(key)
+            state, out = transition(k, state, jax.numpy.zeros(1), params)
+            seen = out.obs
+        with pytest.raises(ValueError, match="shape"):  # the boat has one control
+            res.transition(k, state, jax.numpy.zeros(2), params)
+    assert res.obs_dim == 2 * env.obs_dim + 1 == seen.shape[0]
+
+
+def test_a_cells_kalman_filter_becomes_the_compiled_residuals_base_with_its_settings() -> None:
+    from vnhc_gym.training import TrainConfig
+    from vnhc_gym.training.config import hyperparams_of
+    from vnhc_gym.training.run_jax import _residual
+
+    cfg = TrainConfig(algo="residual_ppo", env="usv", backend="jax", residual_base="kalman",
+                      residual_base_settings={"gain": 20.0, "variant": "plain", "q": 0.01})
+    hp, cfg = hyperparams_of(cfg, "vnhc_gym/USVStream-v1")
+    got = _residual(hp, cfg, "vnhc_gym/USVStream-v1")
+    assert got["base"] == "kalman" and got["gain"] == 20.0
+    assert got["base_settings"] == {"variant": "plain", "q": 0.01}  # as make_classical takes them at the test
+    bad = TrainConfig(algo="residual_ppo", env="usv", backend="jax", residual_base="kalman",
+                      residual_base_settings={"gain": 20.0, "alpha": 0.1})
+    hp, bad = hyperparams_of(bad, "vnhc_gym/USVStream-v1")
+    with pytest.raises(ValueError, match="alpha"):
+        _residual(hp, bad, "vnhc_gym/USVStream-v1")
+    observer = TrainConfig(algo="residual_ppo", env="usv", backend="jax", residual_base="observer")
+    hp, observer = hyperparams_of(observer, "vnhc_gym/USVStream-v1")
+    with pytest.raises(ValueError, match="observer"):
+        _residual(hp, observer, "vnhc_gym/USVStream-v1")

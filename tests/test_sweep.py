@@ -112,13 +112,14 @@ def test_a_compiled_run_is_its_own_entry_and_its_cells_seeds_one_unit() -> None:
     assert algo_of("residual_ppo") == "residual_ppo"
     with pytest.raises(ValueError, match=r"trains \['ppo', 'residual_ppo', 'ppo_history', 'sac', 'residual_sac'\]"):
         RunSpec("law", "usv", backend="jax")  # a classical run has no backend
-    with pytest.raises(ValueError, match=r"needs bases among \['law', 'tuned_law'\].*got \['kalman'\]"):
-        RunSpec("residual_ppo", "usv", backend="jax", bases=("kalman",))
-    # A compiled residual's base is chosen among the grid's laws; on SB3 among all its bases.
-    mixed = grid(["usv"], ["noisy"], ["law", "tuned_law", "kalman", "residual_ppo"], [0], 10, backend="jax")
-    assert [s.bases for s in mixed if s.algo == "residual_ppo"] == [("law", "tuned_law")]
-    mixed = grid(["usv"], ["noisy"], ["law", "tuned_law", "kalman", "residual_ppo"], [0], 10)
+    with pytest.raises(ValueError, match=r"needs bases among \['law', 'tuned_law', 'kalman'\].*got \['observer'\]"):
+        RunSpec("residual_ppo", "usv", backend="jax", bases=("observer",))
+    # A compiled residual's base is chosen among the grid's bases written in JAX; on SB3 among all.
+    algos = ["law", "tuned_law", "observer", "kalman", "residual_ppo"]
+    mixed = grid(["usv"], ["noisy"], algos, [0], 10, backend="jax")
     assert [s.bases for s in mixed if s.algo == "residual_ppo"] == [("law", "tuned_law", "kalman")]
+    mixed = grid(["usv"], ["noisy"], algos, [0], 10)
+    assert [s.bases for s in mixed if s.algo == "residual_ppo"] == [("law", "tuned_law", "observer", "kalman")]
     with pytest.raises(ValueError, match="backend must be one of"):
         RunSpec("ppo", "usv", backend="torch")
     specs = grid(["usv", "sled"], ["nominal"], ["law", "ppo"], [0, 1, 2], 10, backend="jax")

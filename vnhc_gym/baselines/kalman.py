@@ -32,8 +32,11 @@ the update is the dozen lines of `correct`, which those libraries would only wra
 
 from __future__ import annotations
 
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
 from functools import cache, partial
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -46,7 +49,7 @@ from vnhc_gym.envs.config import check_number
 from vnhc_gym.mechanics import functional as F
 from vnhc_gym.tasks.base import Task
 
-__all__ = ["InformedKalmanController", "KalmanController", "correct", "predict", "process_noise"]
+__all__ = ["EKF", "FilterState", "InformedKalmanController", "KalmanController", "correct", "predict", "process_noise"]
 
 Array = NDArray[np.float64]
 
@@ -87,40 +90,157 @@ def _jacobian(f: Any, z: Array, h: float = 1e-6) -> Array:
     return ((out[:, :k] - out[:, k:]) / (2 * h)).transpose(0, 2, 1)
 
 
-def process_noise(n: int, dt: float, q: float) -> Array:
+def process_noise(n: int, dt: Any, q: float) -> Any:
     """``Q`` of white acceleration noise of intensity ``q^2`` on each of ``n`` coordinates over ``dt``:
-    ``q^2 [[dt^3/3, dt^2/2], [dt^2/2, dt]]`` for each (position, velocity) pair, state order ``(q, qd)``."""
-    block = np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]) * q**2
-    out = np.zeros((2 * n, 2 * n))
-    for i in range(n):
-        out[np.ix_([i, n + i], [i, n + i])] = block
-    return out
+    ``q^2 [[dt^3/3, dt^2/2], [dt^2/2, dt]]`` for each (position, velocity) pair, state order ``(q, qd)``
+    (a JAX array; ``dt`` may be traced)."""
+    block = jnp.stack([jnp.stack([dt**3 / 3, dt**2 / 2]), jnp.stack([dt**2 / 2, dt])])
+    return q**2 * jnp.kron(block, jnp.eye(n))
 
 
-def correct(pred: Array, prior: Array, expected: Array, jac: Array, obs: Array, var: float) -> tuple[Array, Array]:
-    """The Kalman update of a batch: ``x = x- + K (z - h(x-))``, ``P = (I - K H) P- (I - K H)^T + K R K^T``
-    (Joseph's form: symmetric and positive however ``K`` rounds), ``K = P- H^T (H P- H^T + R)^-1``.
+def correct(pred: Any, prior: Any, expected: Any, jac: Any, obs: Any, var: Any) -> tuple[Any, Any]:
+    """One episode's Kalman update (pure JAX): ``x = x- + K (z - h(x-))``, ``P = (I - K H) P- (I - K H)^T
+    + K R K^T`` (Joseph's form: symmetric and positive however ``K`` rounds), ``K = P- H^T (H P- H^T +
+    R)^-1``.
 
     Parameters
     ----------
-    pred, prior : ndarray, shapes ``(B, k)`` and ``(B, k, k)``
+    pred, prior : arrays, shapes ``(k,)`` and ``(k, k)``
         The prediction and its covariance.
-    expected, jac : ndarray, shapes ``(B, d)`` and ``(B, d, k)``
+    expected, jac : arrays, shapes ``(d,)`` and ``(d, k)``
         ``h(x-)`` and ``H``; an entry of ``expected`` that is NaN is not measured.
-    obs : ndarray, shape ``(B, d)``
+    obs : array, shape ``(d,)``
         The measurement ``z``.
     var : float
         ``R = var I``.
     """
-    measured = np.isfinite(expected)
-    innovation = np.where(measured, obs - expected, 0.0)
-    jac = np.where(measured[:, :, None], jac, 0.0)
-    d, k = jac.shape[1:]
-    s = jac @ prior @ jac.transpose(0, 2, 1) + var * np.eye(d)
-    gain = np.linalg.solve(s, jac @ prior).transpose(0, 2, 1)  # P- H^T S^-1 (S and P- symmetric)
-    x = pred + np.einsum("bij,bj->bi", gain, innovation)
-    rest = np.eye(k) - gain @ jac
-    return x, rest @ prior @ rest.transpose(0, 2, 1) + var * gain @ gain.transpose(0, 2, 1)
+    measured = jnp.isfinite(expected)
+    innovation = jnp.where(measured, obs - expected, 0.0)
+    jac = jnp.where(measured[:, None], jac, 0.0)
+    d, k = jac.shape
+    s = jac @ prior @ jac.T + var * jnp.eye(d)
+    gain = jnp.linalg.solve(s, jac @ prior).T  # P- H^T S^-1 (S and P- symmetric)
+    rest = jnp.eye(k) - gain @ jac
+    return pred + gain @ innovation, rest @ prior @ rest.T + var * gain @ gain.T
+
+
+#: `correct` compiled for a batch (the numpy controllers' rows).
+_batched_correct = jax.jit(jax.vmap(correct, in_axes=(0, 0, 0, 0, 0, None)))
+
+
+def _correct_rows(pred: Array, prior: Array, expected: Array, jac: Array, obs: Array, var: float
+                  ) -> tuple[Array, Array]:
+    """`correct` on every row of a batch, in float64, as writable numpy arrays."""
+    with jax.enable_x64(True):
+        x, cov = _batched_correct(pred, prior, expected, jac, obs, var)
+    return np.array(x, dtype=np.float64), np.array(cov, dtype=np.float64)
+
+
+class FilterState(NamedTuple):
+    """One episode's filter: the estimate ``z = (x, theta)``, its covariance, and the parameters read
+    from the last observation (those the filter does not estimate)."""
+
+    z: Any
+    cov: Any
+    base: Any
+
+
+@dataclass(frozen=True, eq=False)
+class EKF:
+    """`KalmanController`'s filter for one episode as pure JAX functions: `start` on an episode's
+    first observation, `update` on each next one (told the force applied since), `estimate` for the
+    law.  Batched by ``jax.vmap`` and compiled with its environment, it is the base of the compiled
+    backend's residual learners (`vnhc_gym.wrappers.residual_jax.kalman_base`).  Jacobians are exact
+    (forward-mode differentiation of the task's pure functions).  Build it with `EKF.of`.
+    """
+
+    system: Any  #: the controller model's printed functions
+    chart: Callable[..., Any]  #: the task module's ``controller_inputs(obs, p, args)``
+    seen: Callable[..., Any]  #: the measurement model, `Task.observation_model`
+    move: Callable[..., Any] | None  #: the task module's ``recenter(s, p, args)``, if any
+    drift: Callable[..., Any] | None  #: the task module's ``parameter_drift(s, p, args)``, if any
+    filtered: tuple[int, ...]  #: the indices of the filtered parameters
+    substeps: int
+    q: float
+    q_params: float
+
+    @classmethod
+    def of(cls, task: Task, q: float = 1.0, q_params: float = 0.03) -> EKF:
+        """The filter of a configured task (its controller model, measurement model and frame)."""
+        chart = getattr(sys.modules[type(task).__module__], "controller_inputs", None)
+        if not callable(chart):
+            raise ValueError(f"task {task.name!r}: its module defines no controller_inputs, so no filter can read "
+                             f"its observations")
+        names = list(task.controller_model().param_names)
+        unknown = [p for p in task.filtered_params if p not in names]
+        if unknown:
+            raise ValueError(f"task {task.name!r}: filtered_params {unknown} are not parameters of the controller "
+                             f"model {names}")
+        move, drift = task.frame_functions()
+        return cls(system=task.controller_functions(), chart=chart, seen=task.observation_model(), move=move,
+                   drift=drift, filtered=tuple(names.index(p) for p in task.filtered_params),
+                   substeps=int(task.config.substeps), q=check_number("q", q, low=0.0, high=1e6),
+                   q_params=check_number("q_params", q_params, low=0.0, high=1e6))
+
+    @property
+    def dim(self) -> int:
+        """The controller state's size ``2 n``."""
+        return 2 * int(self.system.N)
+
+    def params(self, z: Any, base: Any) -> Any:
+        """The controller model's parameters: ``base`` with the filtered entries from ``z``."""
+        return base.at[jnp.asarray(self.filtered, dtype=jnp.int32)].set(z[self.dim:]) if self.filtered else base
+
+    def read(self, obs: Any, p_nominal: Any, args: Any) -> tuple[Any, Any]:
+        """``z`` read back from an observation, and the parameters."""
+        y, py = self.chart(obs, p_nominal, args)
+        return jnp.concatenate([y, py[jnp.asarray(self.filtered, dtype=jnp.int32)]]), py
+
+    def start(self, obs: Any, p_nominal: Any, sigma: Any, args: Any) -> FilterState:
+        """The filter at an episode's first observation: ``z`` read back from it, with the covariance
+        ``sigma^2 J J^T`` that independent noise ``sigma`` on each entry gives it (``J = dz/dobs``)."""
+        z, base = self.read(obs, p_nominal, args)
+        jac = jax.jacfwd(lambda o: self.read(o, p_nominal, args)[0])(obs)
+        return FilterState(z, sigma**2 * jac @ jac.T + 1e-12 * jnp.eye(z.shape[0], dtype=z.dtype), base)
+
+    def update(self, f: FilterState, obs: Any, u: Any, p_nominal: Any, dt: Any, sigma: Any, args: Any
+               ) -> FilterState:
+        """Predict one control period with the applied force ``u`` (carried into the frame of the new
+        observation, plus the filtered parameters' random walk), then correct with the observation
+        (``R = max(sigma, 1e-6)^2 I``).  A non-finite result restarts from the observation."""
+        dim, idx = self.dim, jnp.asarray(self.filtered, dtype=jnp.int32)
+        k = f.z.shape[0]
+        q_mat = jnp.zeros((k, k), f.z.dtype).at[:dim, :dim].set(process_noise(dim // 2, dt, self.q))
+        pred, prior = predict(self.system, dt, self.substeps, self.filtered, f.z, f.cov, f.base, u, q_mat)
+        moved = self.params(pred, f.base)
+        if self.move is not None:
+            move = self.move
+
+            def frame(zz: Any) -> Any:
+                x, p = move(zz[:dim], self.params(zz, f.base), args)
+                return jnp.concatenate([x, p[idx]])
+
+            jac = jax.jacfwd(frame)(pred)
+            moved = move(pred[:dim], moved, args)[1]
+            pred, prior = frame(pred), jac @ prior @ jac.T
+        if self.filtered:
+            drift = (self.drift(pred[:dim], moved, args) if self.drift is not None
+                     else jnp.zeros((dim, k - dim), pred.dtype))
+            g = jnp.concatenate([drift, jnp.eye(k - dim, dtype=pred.dtype)])
+            prior = prior + self.q_params**2 * dt * g @ g.T
+        fresh = self.start(obs, p_nominal, sigma, args)
+
+        def seen(zz: Any) -> Any:
+            p = self.params(zz, fresh.base)
+            return self.seen(zz[:dim], p, p, args)
+
+        z, cov = correct(pred, prior, seen(pred), jax.jacfwd(seen)(pred), obs, jnp.maximum(sigma, 1e-6) ** 2)
+        bad = ~(jnp.all(jnp.isfinite(z)) & jnp.all(jnp.isfinite(cov)))
+        return FilterState(jnp.where(bad, fresh.z, z), jnp.where(bad, fresh.cov, cov), fresh.base)
+
+    def estimate(self, f: FilterState) -> tuple[Any, Any]:
+        """The controller state and parameters the law acts on."""
+        return f.z[:self.dim], self.params(f.z, f.base)
 
 
 class KalmanController(ObserverController):
@@ -170,7 +290,8 @@ class KalmanController(ObserverController):
         self._dim = 2 * self.model.n
         k = self._dim + len(self._filtered)
         self._q_state = np.zeros((k, k))  # the acceleration noise, on the state only
-        self._q_state[:self._dim, :self._dim] = process_noise(self.model.n, self.dt, self.q)
+        with jax.enable_x64(True):
+            self._q_state[:self._dim, :self._dim] = np.asarray(process_noise(self.model.n, float(self.dt), self.q))
         self._cov: Array | None = None
         self._base: Array | None = None  # the parameters the filter does not estimate (B, n_params)
         self._predict = _batched_predict(self.system, float(self.dt), int(self.substeps), self._filtered)
@@ -222,7 +343,7 @@ class KalmanController(ObserverController):
     def _recenter(self, z: Array, cov: Array, base: Array) -> tuple[Array, Array, Array]:
         """``z`` in the frame of the next read-back (`Task.recenter`), its covariance carried through
         the change of frame's Jacobian, and the parameters."""
-        if type(self.task).recenter is Task.recenter:
+        if self.task.frame_functions()[0] is None:
             return z, cov, base
         b = z.shape[0]
 
@@ -244,7 +365,7 @@ class KalmanController(ObserverController):
             return self.task.observation_of(zz[:, :self._dim], self._params(zz, np.repeat(base, zz.shape[0] // b, 0)))
 
         var = max(self.sigma, 1e-6) ** 2  # a floor: with no noise the filter follows the observation
-        return correct(z, prior, seen(z), _jacobian(seen, z), obs, var)
+        return _correct_rows(z, prior, seen(z), _jacobian(seen, z), obs, var)
 
     def law(self, states: Array, params: Array) -> tuple[Array, NDArray[np.bool_]]:
         """The law of the chosen ``variant`` on the estimate (``u = 0`` on flagged rows)."""
@@ -341,7 +462,7 @@ class InformedKalmanController(KalmanController):
                                             chart=np.repeat(self._chart, reps, 0))
 
         var = max(self.sigma, 1e-6) ** 2
-        return correct(z, prior, seen(z), _jacobian(seen, z), obs, var)
+        return _correct_rows(z, prior, seen(z), _jacobian(seen, z), obs, var)
 
     def _recenter(self, z: Array, cov: Array, base: Array) -> tuple[Array, Array, Array]:
         """As the filter's, then the told parameters replace the predicted ones, and carry the state

@@ -197,6 +197,13 @@ class FunctionalEnv:
     def obs_dim(self) -> int:
         return int(self.task.obs_dim)
 
+    def check_action(self, action: Array) -> None:
+        """``ValueError`` naming the task if one episode's action is not ``(num_actions,)`` (checked
+        while tracing: a wrong shape would otherwise broadcast against the force bound)."""
+        if jnp.shape(action) != (self.num_actions,):
+            raise ValueError(f"task {self.task.name!r}: an action of one episode has shape ({self.num_actions},), "
+                             f"got {jnp.shape(action)}")
+
     def action_space(self, params: EnvParams | None = None) -> spaces.Box:
         """``Box(-1, 1, (m,))``: the force is ``force_bound * action``."""
         return spaces.Box(-1.0, 1.0, (self.num_actions,), np.float32)
@@ -332,6 +339,7 @@ class FunctionalEnv:
 
     def transition(self, key: Array, state: EnvState, action: Array, params: EnvParams) -> tuple[EnvState, Step]:
         """One control period of one episode, without the reset (see `step`)."""
+        self.check_action(action)
         t = self.task
         system = t.system
         n = system.N

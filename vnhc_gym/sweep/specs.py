@@ -27,7 +27,7 @@ ALL_ALGOS = LEARNED_ALGOS + CLASSICAL_ALGOS + REFERENCE_ALGOS
 #: have no backend.
 SWEEP_BACKENDS = ("sb3", "jax")
 #: The learned agents the compiled backend trains; its residual agents' bases are the classical
-#: baselines that are pure functions of the observation (`COMPILED_BASES`: the law).
+#: baselines written in JAX (`COMPILED_BASES`: the law, and the law on the Kalman filter).
 COMPILED_ALGOS = ("ppo", "residual_ppo", "ppo_history", "sac", "residual_sac")
 
 
@@ -74,8 +74,8 @@ class RunSpec:
             raise ValueError(f"bases must be classical baselines other than the planner, got {bad}")
         if self.backend == "jax" and self.algo in RESIDUAL_ALGOS and not (
                 self.bases and set(self.bases) <= set(COMPILED_BASES)):
-            raise ValueError(f"a residual run of backend 'jax' needs bases among {list(COMPILED_BASES)} (pure "
-                             f"functions of the observation), got {list(self.bases)}")
+            raise ValueError(f"a residual run of backend 'jax' needs bases among {list(COMPILED_BASES)}, got "
+                             f"{list(self.bases)}")
 
     @property
     def learned(self) -> bool:

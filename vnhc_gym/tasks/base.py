@@ -41,7 +41,19 @@ Array = NDArray[np.float64]
 
 #: The compiled, batched observation of `Task.observation_of`, by task class and printed system.
 _OBSERVATIONS: dict[tuple[type, Any], Any] = {}
+#: The compiled, batched pure functions of a task module (`Task.controller_inputs`, `_batched`).
 _CHARTS: dict[Any, Any] = {}
+
+
+def _batched(fn: Any, states: Array, params: Array, args: Any) -> Any:
+    """A task module's pure ``fn(s, p, args)`` on every row of ``(B, .)`` states and parameters, in
+    float64, as writable numpy arrays (a tuple of them where ``fn`` returns a tuple)."""
+    batched = _CHARTS.get(fn)
+    if batched is None:
+        batched = _CHARTS[fn] = jax.jit(jax.vmap(fn, in_axes=(0, 0, None)))
+    with jax.enable_x64(True):
+        out = batched(np.asarray(states, dtype=np.float64), np.asarray(params, dtype=np.float64), args)
+    return jax.tree.map(lambda a: np.array(a, dtype=np.float64), out)
 
 class Task:
     """A virtual-constraint task configured for one environment (subclass once per task).
@@ -84,6 +96,10 @@ class Task:
         Parameters of [`controller_model`][vnhc_gym.tasks.base.Task.controller_model] that a
         controller reads from the observation and that change along an episode (a current's local
         model): a Kalman filter estimates them with the state.
+    unmeasured : tuple of int
+        Observation entries that a filter's measurement model leaves out (NaN in
+        [`observation_of`][vnhc_gym.tasks.base.Task.observation_of]): the boat's position, which
+        the frame centred on the boat does not hold.
 
     Notes
     -----
@@ -116,6 +132,7 @@ class Task:
     angles: ClassVar[tuple[int, ...]] = ()
     uncertain: ClassVar[tuple[str, ...]] = ()
     filtered_params: ClassVar[tuple[str, ...]] = ()
+    unmeasured: ClassVar[tuple[int, ...]] = ()
 
     config: EnvConfig
     options: TaskOptions
@@ -192,7 +209,8 @@ class Task:
         p = jax.ShapeDtypeStruct((n_params,), np.float32)
         phi = jax.ShapeDtypeStruct((m,), np.float32)
         args = params.args
-        checks = [("initial", fns.initial, (key, p, args), (n_state,), "the state's 2n entries"),
+        checks: list[tuple[str, Any, tuple[Any, ...], tuple[int, ...], str]] = [
+                  ("initial", fns.initial, (key, p, args), (n_state,), "the state's 2n entries"),
                   ("observation", fns.observation, (s, phi, p, args), (self.obs_dim,), "obs_dim")]
         if fns.task_params is not None:
             checks.append(("task_params", fns.task_params, (key, p, args), (n_params,), "the system's parameters"))
@@ -206,6 +224,20 @@ class Task:
                         "the controller model's 2n entries"),
                        ("controller_inputs (its parameters)", lambda *a: chart(*a)[1], (o, p, args),
                         (len(ctrl.param_names),), "the controller model's parameters")]
+            cs = jax.ShapeDtypeStruct((2 * ctrl.n,), np.float32)
+            cp = jax.ShapeDtypeStruct((len(ctrl.param_names),), np.float32)
+            move, drift = self.frame_functions()
+            if move is not None:
+                checks += [("recenter (its state)", lambda *a: move(*a)[0], (cs, cp, args), (2 * ctrl.n,),
+                            "the controller model's 2n entries"),
+                           ("recenter (its parameters)", lambda *a: move(*a)[1], (cs, cp, args),
+                            (len(ctrl.param_names),), "the controller model's parameters")]
+            if drift is not None:
+                checks.append(("parameter_drift", drift, (cs, cp, args), (2 * ctrl.n, len(self.filtered_params)),
+                               "the controller state's 2n entries by the filtered_params"))
+        bad = [i for i in self.unmeasured if not (isinstance(i, (int, np.integer)) and 0 <= i < self.obs_dim)]
+        if bad:
+            raise ValueError(f"{where}: unmeasured index {bad} outside the observation's {self.obs_dim} entries")
         for name, fn, inputs, shape, what in checks:
             got = jax.eval_shape(fn, *inputs).shape
             if tuple(got) != shape:
@@ -292,6 +324,13 @@ class Task:
         """The model a model-based controller uses (default: the environment's own system)."""
         return self.model
 
+    def controller_functions(self) -> Any:
+        """[`controller_model`][vnhc_gym.tasks.base.Task.controller_model] as printed JAX functions
+        (the environment's own [`jax_system`][vnhc_gym.tasks.base.Task.jax_system] unless the
+        controllers run a model of their own)."""
+        model = self.controller_model()
+        return self.jax_system() if model is self.model else model.functions
+
     def controller_inputs(self, obs: Array) -> tuple[Array, Array]:
         """States and parameters of [`controller_model`][vnhc_gym.tasks.base.Task.controller_model]
         read back from observations ``(B, d)``: the task module's pure ``controller_inputs(obs, p,
@@ -334,48 +373,72 @@ class Task:
                                       f"(controller_model), so it must define informed_params")
         return np.array(params_true, dtype=np.float64)
 
+    def observation_model(self) -> Any:
+        """The noise-free observation of one controller state as a pure JAX function ``(s, p, chart,
+        args) -> obs``: the task's ``observation`` on [`controller_model`][vnhc_gym.tasks.base.Task.controller_model]'s
+        printed system, with ``phi`` from the parameters ``p`` and the rest of the observation from
+        ``chart`` (an environment observes with the nominal parameters it tells a controller, which
+        differ from the true ones that drive ``phi`` under mismatch), and the ``unmeasured`` entries
+        NaN (a filter's measurement model)."""
+        system = self.controller_functions()
+        observation = sys.modules[type(self).__module__].observation
+        if "system" in inspect.signature(observation).parameters:
+            observation = partial(observation, system=system)
+        unmeasured = np.asarray(self.unmeasured, dtype=np.intp)
+
+        def one(s: Any, p: Any, chart: Any, args: Any) -> Any:
+            return observation(s, system.phi(s, p), chart, args).at[unmeasured].set(np.nan)
+
+        return one
+
     def observation_of(self, states: Array, params: Array, chart: Array | None = None) -> Array:
         """Noise-free observations ``(B, obs_dim)`` of controller states and parameters: the task's
-        own ``observe`` at each state, with ``phi`` and the extra outputs of
-        [`controller_model`][vnhc_gym.tasks.base.Task.controller_model] (a filter's measurement model).
+        [`observation_model`][vnhc_gym.tasks.base.Task.observation_model] at each state (``chart``
+        defaults to ``params``).
 
         It inverts [`controller_inputs`][vnhc_gym.tasks.base.Task.controller_inputs] where that reads
-        the state back from the observation; the observation's clipping is left out.  ``phi`` is
-        computed with ``params``, and the observation with ``chart`` (default ``params``): an
-        environment observes with the nominal parameters it tells a controller, which differ from the
-        true ones that drive ``phi`` under mismatch.
+        the state back from the observation; the observation's clipping is left out.
         """
-        model = self.controller_model()
-        system = self.jax_system() if model is self.model else model.functions
-        fn = _OBSERVATIONS.get((type(self), system))
+        key = (type(self), self.controller_functions())
+        fn = _OBSERVATIONS.get(key)
         if fn is None:
-            observation = sys.modules[type(self).__module__].observation
-            if "system" in inspect.signature(observation).parameters:
-                observation = partial(observation, system=system)
-
-            def one(s: Any, p: Any, c: Any, args: Any) -> Any:
-                return observation(s, system.phi(s, p), c, args)
-
-            fn = _OBSERVATIONS[(type(self), system)] = jax.jit(jax.vmap(one, in_axes=(0, 0, 0, None)))
+            fn = _OBSERVATIONS[key] = jax.jit(jax.vmap(self.observation_model(), in_axes=(0, 0, 0, None)))
         with jax.enable_x64(True):
             p = np.asarray(params, dtype=np.float64)
             out = fn(np.asarray(states, dtype=np.float64), p, p if chart is None else np.asarray(chart, np.float64),
                      self.args)
         return np.array(out, dtype=np.float64)  # a writable copy
 
+    def frame_functions(self) -> tuple[Any, Any]:
+        """The task module's pure ``recenter(s, p, args) -> (s, p)`` and ``parameter_drift(s, p, args)
+        -> (2n, len(filtered_params))`` (each None where the module defines none): what a Kalman
+        filter needs of a task whose controller frame moves with the system or whose filtered
+        parameters carry the state.  See [`recenter`][vnhc_gym.tasks.base.Task.recenter] and
+        [`parameter_drift`][vnhc_gym.tasks.base.Task.parameter_drift]."""
+        module = sys.modules[type(self).__module__]
+        return getattr(module, "recenter", None), getattr(module, "parameter_drift", None)
+
     def parameter_drift(self, states: Array, params: Array) -> Array:
         """How the state moves with an unpredicted step of the
         [`filtered_params`][vnhc_gym.tasks.base.Task] (a Kalman filter's random walk of them):
         ``(B, 2 n, k)``, the state's change per unit change of each of the ``k`` parameters, at
-        controller states and parameters ``(B, 2 n)``, ``(B, n_params)``.  Zero unless a filtered
-        parameter is also carried by the state (the current a boat drifts with)."""
-        return np.zeros((states.shape[0], states.shape[1], len(self.filtered_params)))
+        controller states and parameters ``(B, 2 n)``, ``(B, n_params)``: the module's pure
+        ``parameter_drift`` at each row; zero where it defines none (no filtered parameter is also
+        carried by the state)."""
+        fn = self.frame_functions()[1]
+        if fn is None:
+            return np.zeros((states.shape[0], states.shape[1], len(self.filtered_params)))
+        return _batched(fn, states, params, self.args)
 
     def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
         """Controller states and parameters predicted one step ahead, expressed in the frame of the
-        next [`controller_inputs`][vnhc_gym.tasks.base.Task.controller_inputs] (identity unless that
-        frame moves with the system)."""
-        return states, params
+        next [`controller_inputs`][vnhc_gym.tasks.base.Task.controller_inputs]: the module's pure
+        ``recenter`` at each row (identity where it defines none: the frame does not move)."""
+        fn = self.frame_functions()[0]
+        if fn is None:
+            return states, params
+        s, p = _batched(fn, states, params, self.args)
+        return s, p
 
     def scene(self, state: Array, phi: Array, params: Array) -> Any:
         """What a frame shows of one episode (a [`Scene`][vnhc_gym.envs.rendering.Scene]: bodies,

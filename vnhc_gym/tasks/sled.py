@@ -64,6 +64,14 @@ def controller_inputs(obs: jax.Array, p: jax.Array, args: Args) -> tuple[jax.Arr
     return jnp.stack([zero, zero, zero, OBS_VEL_SCALE * obs[0], OBS_VEL_SCALE * obs[1], OBS_RATE_SCALE * obs[2]]), p
 
 
+def recenter(s: jax.Array, p: jax.Array, args: Args) -> tuple[jax.Array, jax.Array]:
+    """A state of the frame of `controller_inputs` one step on, in that frame anew (origin at the
+    blade, heading 0): a filter's prediction, in the frame of the next observation."""
+    c, sn = jnp.cos(s[2]), jnp.sin(s[2])
+    zero = jnp.zeros((), s.dtype)
+    return jnp.stack([zero, zero, zero, c * s[3] + sn * s[4], -sn * s[3] + c * s[4], s[5]]), p
+
+
 @dataclass(frozen=True)
 class SledOptions(TaskOptions):
     """The sled's own keyword arguments."""
@@ -110,15 +118,6 @@ class SledCruiseTask(Task):
     def scene(self, state: Array, phi: Array, params: Array) -> Scene:
         """The sled from above on the ice: its blade's heading, its velocity, both components of phi."""
         return hull_scene(state, phi, size=1.6)
-
-    def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
-        """The predicted states in the sled's new frame (origin at the blade, heading 0)."""
-        s = states.copy()
-        th = s[:, 2]
-        c, sn = np.cos(th), np.sin(th)
-        s[:, 3], s[:, 4] = c * states[:, 3] + sn * states[:, 4], -sn * states[:, 3] + c * states[:, 4]
-        s[:, 0:3] = 0.0
-        return s, params
 
 
 class SledCruiseEnv(ConstraintEnv):

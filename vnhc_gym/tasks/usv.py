@@ -155,6 +155,36 @@ def controller_inputs(obs: jax.Array, p: jax.Array, args: Args) -> tuple[jax.Arr
                          obs[10], obs[11], obs[12], obs[13]])
 
 
+#: The parameters a Kalman filter estimates with the state (`USVTask.filtered_params`): the local
+#: current, which changes as the boat moves through the field.
+FILTERED_PARAMS = CONTROLLER_PARAMS[3:]
+
+
+def recenter(s: jax.Array, p: jax.Array, args: Args) -> tuple[jax.Array, jax.Array]:
+    """A state and affine current of the frame of `controller_inputs` one step on, in the frame
+    centred on the boat anew: the current at the boat becomes the field's constant term (a filter's
+    prediction, in the frame of the next observation)."""
+    x, y = s[0], s[1]
+    c1 = p[3] + p[5] * x + p[6] * y  # c_c1 + c_j11 x + c_j12 y
+    c2 = p[4] + p[7] * x + p[8] * y  # c_c2 + c_j21 x + c_j22 y
+    return s.at[0:2].set(0.0), p.at[3].set(c1).at[4].set(c2)
+
+
+def parameter_drift(s: jax.Array, p: jax.Array, args: Args) -> jax.Array:
+    """How the ground velocity moves with an unpredicted change of the current at the boat:
+    ``d(xd, yd) = n n^T dC``, ``(6, len(FILTERED_PARAMS))``.
+
+    The boat is pushed by ``W = m dV/dt`` with ``V = n n^T C`` the current's part across the
+    heading ``n = (sin theta, -cos theta)``, so its velocity through that part of the water,
+    ``w = qd - V``, has dynamics in which the current does not appear, and ``phi = n . w``.  A
+    change of the current at the boat that the affine model does not predict (the field's
+    curvature along the path) therefore carries the ground velocity with it; a filter that let
+    the current drift alone would blur ``w``, and with it ``phi`` and the law.
+    """
+    n = jnp.stack([jnp.sin(s[2]), -jnp.cos(s[2])])
+    return jnp.zeros((6, len(FILTERED_PARAMS)), s.dtype).at[3:5, 0:2].set(jnp.outer(n, n))
+
+
 @dataclass(frozen=True)
 class USVOptions(TaskOptions):
     """The USV's own keyword arguments."""
@@ -186,7 +216,8 @@ class USVTask(Task):
     phi_sf_scale = 1.0
     angles = (2,)  # theta
     uncertain = ("m", "I", "current_scale")
-    filtered_params = ("c_c1", "c_c2", "c_j11", "c_j12", "c_j21", "c_j22")  # the local current, read at the boat
+    filtered_params = FILTERED_PARAMS  # the local current, read at the boat
+    unmeasured = (7, 8)  # the position: the frame centred on the boat does not hold where the boat is
 
     def __init__(self, config: EnvConfig, options: USVOptions) -> None:
         super().__init__(config, options)
@@ -249,42 +280,6 @@ class USVTask(Task):
         for col, name in enumerate(("c_c1", "c_c2", "c_j11", "c_j12", "c_j21", "c_j22")):
             p[:, names.index(name)] = local[:, col]
         return p
-
-    def observation_of(self, states: Array, params: Array, chart: Array | None = None) -> Array:
-        """As [`Task.observation_of`][vnhc_gym.tasks.base.Task.observation_of], with the position entries
-        NaN: the frame centred on the boat does not hold where the boat is."""
-        out = super().observation_of(states, params, chart)
-        out[:, 7:9] = np.nan
-        return out
-
-    def parameter_drift(self, states: Array, params: Array) -> Array:
-        """The ground velocity moves with the current at the boat: ``d(xd, yd) = n n^T dC``.
-
-        The boat is pushed by ``W = m dV/dt`` with ``V = n n^T C`` the current's part across the
-        heading ``n = (sin theta, -cos theta)``, so its velocity through that part of the water,
-        ``w = qd - V``, has dynamics in which the current does not appear, and ``phi = n . w``.  A
-        change of the current at the boat that the affine model does not predict (the field's
-        curvature along the path) therefore carries the ground velocity with it; a filter that let
-        the current drift alone would blur ``w``, and with it ``phi`` and the law.
-        """
-        n = np.stack([np.sin(states[:, 2]), -np.cos(states[:, 2])], axis=1)
-        out = np.zeros((states.shape[0], states.shape[1], len(self.filtered_params)))
-        cols = [self.filtered_params.index(c) for c in ("c_c1", "c_c2")]
-        out[:, 3:5, cols] = n[:, :, None] * n[:, None, :]
-        return out
-
-    def recenter(self, states: Array, params: Array) -> tuple[Array, Array]:
-        """The same states and affine currents in the frame centred on each boat (see
-        `controller_inputs`): the current at the boat becomes the field's constant term."""
-        names = self.controller_model().param_names
-        s, p = states.copy(), params.copy()
-        x, y = s[:, 0].copy(), s[:, 1].copy()
-        j = [p[:, names.index(n)] for n in ("c_j11", "c_j12", "c_j21", "c_j22")]
-        p[:, names.index("c_c1")] += j[0] * x + j[1] * y
-        p[:, names.index("c_c2")] += j[2] * x + j[3] * y
-        s[:, 0] = 0.0
-        s[:, 1] = 0.0
-        return s, p
 
     def scene(self, state: Array, phi: Array, params: Array) -> Scene:
         """The boat from above in its true current (a quiver), its velocity and its velocity

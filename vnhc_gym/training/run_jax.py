@@ -56,7 +56,7 @@ from vnhc_gym.training.config import (
     run_stem,
 )
 from vnhc_gym.wrappers.history_jax import HistoryEnv
-from vnhc_gym.wrappers.residual_jax import BASES, ResidualEnv, law_base
+from vnhc_gym.wrappers.residual_jax import BASES, ResidualEnv, kalman_base, law_base
 
 __all__ = ["JaxActor", "train_seeds"]
 
@@ -201,16 +201,30 @@ def _residual(hp: dict[str, Any], cfg: TrainConfig, env_id: str) -> dict[str, An
         hp["policy_kwargs"] = pk
     base = cfg.residual_base or "law"
     if base not in BASES:
-        raise ValueError(f"backend 'jax' trains a residual on {list(BASES)} (pure functions of the observation), "
-                         f"got base {base!r} (use backend 'sb3')")
+        raise ValueError(f"backend 'jax' trains a residual on {list(BASES)}, got base {base!r} (use backend 'sb3')")
     settings = dict(cfg.residual_base_settings or {})
-    unknown = sorted(set(settings) - {"gain", "variant"})
+    known = ("gain", "variant", "q", "q_params") if base == "kalman" else ("gain", "variant")
+    unknown = sorted(set(settings) - set(known))
     if unknown:
-        raise ValueError(f"the base {base!r} takes gain and variant, got {unknown}")
+        raise ValueError(f"the base {base!r} takes {', '.join(known)}, got {unknown}")
+    base_settings: dict[str, Any] = {"variant": settings.get("variant", "plain")}
+    base_settings.update({k: float(settings[k]) for k in ("q", "q_params") if k in settings})
     out = {"scale": float(kwargs.get("scale", 0.2)), "observe_base": bool(kwargs.get("observe_base", False)),
-           "base": base, "base_settings": {"variant": settings.get("variant", "plain")},
-           "gain": float(settings.get("gain", 5.0))}
+           "base": base, "base_settings": base_settings, "gain": float(settings.get("gain", 5.0))}
     return out if log_std is None else {**out, "log_std_init": float(log_std)}
+
+
+def _base_of(env: Any, residual: dict[str, Any], env_id: str, scenario: str, env_kwargs: dict[str, Any]) -> Any:
+    """The residual's base on the functional environment ``env`` (made from ``env_id``, ``scenario``
+    and ``env_kwargs``): the law, or the law on the Kalman filter of the same configured task."""
+    settings = residual["base_settings"]
+    if residual["base"] != "kalman":
+        return law_base(env, residual["gain"], settings["variant"])
+    import gymnasium as gym
+
+    task = gym.make(env_id, scenario=scenario, **env_kwargs).unwrapped.task  # type: ignore[attr-defined]
+    return kalman_base(env, task, residual["gain"], settings["variant"], q=settings.get("q", 1.0),
+                       q_params=settings.get("q_params", 0.03))
 
 
 def start_at_base(params: dict[str, Any], residual: dict[str, Any]) -> dict[str, Any]:
@@ -263,9 +277,11 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
     activation, squash = ("ReLU", "tanh") if sac else (settings.activation, "clip")
     env, env_params = make_jax(env_id, cfg.scenario, **cfg.env_kwargs)
     val_env, val_params = make_jax(env_id, cfg.scenario)
-    if residual is not None:  # the same base, with its gain and variant, on the training and validation episodes
-        env, val_env = (ResidualEnv.around(e, law_base(e, residual["gain"], residual["base_settings"]["variant"]),
-                                           residual["scale"], residual["observe_base"]) for e in (env, val_env))
+    if residual is not None:  # the same base, with its settings, on the training and validation episodes
+        env = ResidualEnv.around(env, _base_of(env, residual, env_id, cfg.scenario, cfg.env_kwargs),
+                                 residual["scale"], residual["observe_base"])
+        val_env = ResidualEnv.around(val_env, _base_of(val_env, residual, env_id, cfg.scenario, {}),
+                                     residual["scale"], residual["observe_base"])
     if frame_stack > 1:
         env, val_env = HistoryEnv.around(env, frame_stack), HistoryEnv.around(val_env, frame_stack)
     horizon = max(1, round(EPISODE_TIME / float(val_params.dt)))
