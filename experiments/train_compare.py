@@ -3,21 +3,22 @@ the oracle and the learned agents, scored on held-out episodes.
 
 The grid (``GRID``): every registered task x 6 scenarios x {the oracle and the informed filter (the
 headroom references), the k = 5 law, the tuned law (gain and variant), the safety-filtered law, the observer law, the
-Kalman-filter law, the adaptive law, PPO, residual PPO on the cell's best classical baseline, PPO
-with a history of 4 observations}, and the planning baseline (MPC within
-the force bound) on nominal and saturated; 5 training seeds on nominal and on the three scenarios
-where the law is weakest (noisy, mismatch, disturbance), 3 on the others; 2 M env steps per
-learned run.  ``--large`` is the bigger grid (10 seeds everywhere, 5 M steps).  It runs
+Kalman-filter law, the adaptive law, PPO (on Stable-Baselines3 and compiled), residual PPO on the
+cell's best classical baseline (Stable-Baselines3), PPO with a history of 4 observations
+(compiled)}, and the planning baseline (MPC within the force bound) on nominal and saturated; 5
+training seeds on nominal and on the three scenarios where the law is weakest (noisy, mismatch,
+disturbance), 3 on the others; 2 M env steps per learned run (``LEARNERS`` says why each learner
+trains where it does).  ``--large`` is the bigger grid (10 seeds everywhere, 5 M steps).  It runs
 through ``vnhc-gym sweep``'s code path: resumable (each finished run is saved at once and skipped on
 a rerun, so the grid can run over several sittings), on a process pool or a Ray cluster; then it
 writes the report (the score's intervals, the verdict per cell, steps and seconds to parity,
 learning curves, the verdict figure, a performance profile) to ``<out>/report``.
 
-    python experiments/train_compare.py                       # the default grid, about 8 hours on 2 cores
+    python experiments/train_compare.py                       # the default grid, about 9 hours on 2 cores
     python experiments/train_compare.py --quick               # a minute or two: two tasks, the pipeline end to end
     python experiments/train_compare.py --large --out results/large   # more seeds, longer budgets
     python experiments/train_compare.py --learners ppo residual_ppo ppo_history sac residual_sac   # SAC too
-    python experiments/train_compare.py --learners ppo --backend jax   # compiled PPO, beside SB3's in the report
+    python experiments/train_compare.py --learners ppo residual_ppo --backend jax   # these learners compiled
     python experiments/train_compare.py --executor ray --address <head>:6379   # on a cluster
     python experiments/train_compare.py --publish docs/results/train_compare   # copy the report there
     python experiments/train_compare.py --records docs/results/train_compare/runs.jsonl.gz   # continue it
@@ -54,15 +55,19 @@ SCENARIOS = ["nominal", "saturated", "mismatch", "noisy", "coarse", "disturbance
 #: Five seeds where the law is weakest and on nominal, three elsewhere.
 SEEDS = {"nominal": range(5), "noisy": range(5), "mismatch": range(5), "disturbance": range(5),
          "saturated": range(3), "coarse": range(3)}
-#: The learned agents of the default grid (``--learners`` adds any of ``vnhc_gym.sweep.LEARNED_ALGOS``).
-LEARNERS = ["ppo", "residual_ppo", "ppo_history"]
+#: The learned agents of the default grid and the backend each trains on: PPO on both (the report's
+#: ``backends.md`` places the compiled runs against SB3's, cell by cell), residual PPO on
+#: Stable-Baselines3 (its base is the cell's best classical baseline, which the compiled backend offers
+#: only among the laws and the Kalman filter) and PPO with history compiled (the faster backend).
+#: ``--learners`` (any of ``vnhc_gym.sweep.LEARNED_ALGOS``) with ``--backend`` replaces them.
+LEARNERS = [("ppo", "sb3"), ("residual_ppo", "sb3"), ("ppo", "jax"), ("ppo_history", "jax")]
 #: Budgets (env steps) of the learners that do not take the grid's: SAC's file budget of 1 M (an
 #: off-policy env step costs about 15x a PPO one here).
 BUDGETS = {"sac": 1_000_000, "residual_sac": 1_000_000}
 #: The planning baseline (a solve every control step) where the force bound decides: nominal and saturated.
 PLANNING = {"algos": list(PLANNING_ALGOS), "scenarios": ["nominal", "saturated"]}
 CLASSICAL = [*REFERENCE_ALGOS, *(a for a in CLASSICAL_ALGOS if a not in PLANNING_ALGOS)]
-GRID = {"scenarios": SCENARIOS, "algos": [*CLASSICAL, *LEARNERS], "n_timesteps": 2_000_000}
+GRID = {"scenarios": SCENARIOS, "n_timesteps": 2_000_000}
 LARGE = {"seeds": range(10), "n_timesteps": 5_000_000}
 
 
@@ -70,15 +75,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tiny budgets, one scenario, one seed, two tasks (CI)")
     ap.add_argument("--large", action="store_true", help="10 seeds in every cell and 5 M steps per learned run")
-    ap.add_argument("--learners", nargs="+", default=LEARNERS, choices=list(LEARNED_ALGOS),
-                    help=f"the learned agents of the grid (default {' '.join(LEARNERS)})")
+    ap.add_argument("--learners", nargs="+", choices=list(LEARNED_ALGOS),
+                    help="the learned agents of the grid, all on --backend (default: "
+                         f"{', '.join(f'{a} on {b}' for a, b in LEARNERS)})")
     ap.add_argument("--algos", nargs="+", choices=[*CLASSICAL, *LEARNED_ALGOS, *PLANNING_ALGOS],
                     help="run only these algorithms of the grid (the same runs, so a later full run skips them); "
                          "the report covers every finished run")
-    ap.add_argument("--backend", choices=["sb3", "jax"], default="sb3",
-                    help="where the learners train: sb3, or jax (compiled with their environment, a cell's seeds in "
-                         "one program, a residual on the cell's best law; reported as ppo-jax and so on beside "
-                         "sb3's rows)")
+    ap.add_argument("--backend", choices=["sb3", "jax"],
+                    help="where the --learners train (default sb3): sb3, or jax (compiled with their environment, a "
+                         "cell's seeds in one program; reported as ppo-jax and so on beside sb3's rows)")
     ap.add_argument("--out", default="results/train_compare")
     ap.add_argument("--executor", choices=["local", "ray"], default="local")
     ap.add_argument("--address", default=None)
@@ -105,10 +110,14 @@ def main() -> None:
         seeds = {} if args.large else {k: list(v) for k, v in SEEDS.items()}
         specs = grid(tasks, GRID["scenarios"], CLASSICAL, list(LARGE["seeds"]) if args.large else [0],
                      size["n_timesteps"])
-        for learner in args.learners:
+        learners = LEARNERS
+        if args.learners or args.backend:
+            names = args.learners or list(dict.fromkeys(a for a, _ in LEARNERS))
+            learners = [(a, args.backend or "sb3") for a in names]
+        for learner, backend in learners:
             budget = BUDGETS.get(learner, GRID["n_timesteps"]) * size["n_timesteps"] // GRID["n_timesteps"]
             specs += grid(tasks, GRID["scenarios"], [learner], list(LARGE["seeds"]) if args.large else [0], budget,
-                          seeds_by_scenario=seeds, backend=args.backend)
+                          seeds_by_scenario=seeds, backend=backend)
         specs += grid(tasks, PLANNING["scenarios"], PLANNING["algos"], [0], size["n_timesteps"])
         jobs = args.jobs
     if args.algos:
@@ -187,9 +196,9 @@ def ship(out: Path) -> None:
             settings.setdefault(spec["env"], {}).setdefault(spec["scenario"], {})[spec["algo"]] = r["settings"]
     (root / "baselines" / "settings.json").write_text(json.dumps(settings, indent=1, sort_keys=True) + "\n")
     for task in TASKS:
-        for algo in LEARNERS:
+        for algo in dict.fromkeys(a for a, b in LEARNERS if b == "sb3"):  # the zoo holds SB3 models
             rs = [r for r in runs if r["spec"]["env"] == task and r["spec"]["scenario"] == "nominal"
-                  and r["spec"]["algo"] == algo]
+                  and r["spec"]["algo"] == algo and r["spec"].get("backend", "sb3") == "sb3"]
             if len(rs) < len(SEEDS["nominal"]):  # only from a finished cell
                 print(f"not shipping {task}-{algo}: {len(rs)} of {len(SEEDS['nominal'])} nominal runs finished")
                 continue
