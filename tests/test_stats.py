@@ -1,5 +1,6 @@
-"""Tests of vnhc_gym.stats: the two-level bootstrap against rliable's stratified bootstrap and against
-its exact variance, the probability of improvement against hand computations, and input validation."""
+"""Tests of vnhc_gym.stats: the two-level bootstrap against rliable's bootstrap on one run and against
+its exact variance on several, the probability of improvement against hand computations, and input
+validation."""
 
 from __future__ import annotations
 
@@ -73,27 +74,6 @@ def _mc_tolerance(ours: Callable[[float], tuple[float, float]], rly_reps: int,
             5 * sd_factor * abs(high_wide - high_narrow) / (2 * h) + 1e-12)
 
 
-@pytest.mark.parametrize("metric", ["mean", "iqm"])
-def test_interval_over_runs_matches_rliable_stratified_bootstrap(rly: Any, metric: str) -> None:
-    # rliable's StratifiedBootstrap with task_bootstrap=True, given the transposed (episodes, runs)
-    # array, redraws the columns (the runs) and then the rows within each drawn column (the
-    # episodes): the same two-level scheme.
-    library, metrics = rly
-    aggregate = np.mean if metric == "mean" else metrics.aggregate_iqm
-    point, ci = library.get_interval_estimates({"x": RUNS_DIFFER.T}, lambda s: np.array([aggregate(s)]),
-                                               task_bootstrap=True, reps=RLY_REPS, confidence_interval_size=0.95)
-
-    def ours(confidence: float) -> tuple[float, float]:
-        res = interval_estimates({"x": RUNS_DIFFER}, metric, reps=OUR_REPS, confidence=confidence)["x"]
-        return res.low, res.high
-
-    res = interval_estimates({"x": RUNS_DIFFER}, metric, reps=OUR_REPS)["x"]
-    assert res.point == pytest.approx(point["x"][0], abs=1e-12, rel=0)
-    tol_low, tol_high = _mc_tolerance(ours, RLY_REPS)
-    assert abs(res.low - ci["x"][0, 0]) <= tol_low
-    assert abs(res.high - ci["x"][1, 0]) <= tol_high
-
-
 def test_interval_of_one_run_matches_rliable_over_episodes(rly: Any) -> None:
     # A classical baseline: one run, whose episodes play rliable's runs of one task.
     library, _ = rly
@@ -131,28 +111,41 @@ def test_iqm_matches_rliable(rly: Any) -> None:
 
 
 def _two_level_sd(scores: np.ndarray) -> float:
-    """Standard deviation of a two-level replicate's mean, from the data alone.
+    """Standard deviation of a replicate's mean, from the data alone.
 
-    A replicate's mean is the average of n_runs independent slots, each the mean of n_episodes
-    draws from a run drawn uniformly; by the law of total variance a slot has variance
-    B + W / n_episodes, B being the (plug-in) variance of the run means and W the mean within-run
-    variance.  Pooling (one run of every episode) gives (B + W) / (n_runs * n_episodes) instead.
+    With the scores decomposed as ``mu + a_run + b_episode + c`` (row and column effects of zero mean,
+    ``c`` of zero mean along every row and column), a replicate's mean is ``mu + mean(a) over the
+    drawn runs + mean(b) over the drawn episodes + mean(c) over the drawn cells``; the three parts
+    are uncorrelated, so its variance is ``var(a) / n_runs + var(b) / n_episodes + var(c) / (n_runs
+    n_episodes)`` (plug-in variances).
     """
     n_runs, n_episodes = scores.shape
-    between = np.var(scores.mean(axis=1))
-    within = np.mean(np.var(scores, axis=1))
-    return float(np.sqrt((between + within / n_episodes) / n_runs))
+    a = scores.mean(axis=1) - scores.mean()
+    b = scores.mean(axis=0) - scores.mean()
+    c = scores - scores.mean() - a[:, None] - b[None, :]
+    return float(np.sqrt(np.var(a) / n_runs + np.var(b) / n_episodes + np.var(c) / (n_runs * n_episodes)))
 
 
 @pytest.mark.parametrize("scores", [RUNS_DIFFER, RUNS_ALIKE], ids=["runs-differ", "runs-alike"])
 def test_interval_width_is_the_two_level_variance(scores: np.ndarray) -> None:
     # The replicates of a mean of 100 values are close to normal, so the 95 % interval is
     # 2 * 1.96 standard deviations wide; 4 % covers the Monte Carlo error of 50 000 replicates
-    # (under 1 %) and the skewness that remains (the widths come out 1.7 % and 0.9 % narrower).
-    # Redrawing only the episodes gives another width (by a factor 4.2 for RUNS_DIFFER, 1.2 for
-    # RUNS_ALIKE), and so does redrawing only the runs (1.7 for RUNS_ALIKE).
+    # (under 1 %) and the skewness that remains.
     res = interval_estimates({"x": scores}, reps=OUR_REPS)["x"]
     assert _width(res) == pytest.approx(2 * norm.ppf(0.975) * _two_level_sd(scores), rel=0.04)
+
+
+def test_identical_runs_have_the_interval_of_one() -> None:
+    # Runs tested on the same episode seeds that score the same (a residual agent that stayed at its
+    # base) are one run: redrawing their episodes separately would narrow the interval by sqrt(5).
+    one = RUNS_DIFFER[2][None, :]
+    for metric in ("mean", "iqm"):
+        same = interval_estimates({"x": np.repeat(one, N_RUNS, axis=0)}, metric)["x"]
+        alone = interval_estimates({"x": one}, metric)["x"]
+        assert (same.point, same.low, same.high) == pytest.approx((alone.point, alone.low, alone.high), abs=1e-12)
+    y = RUNS_ALIKE[:1]
+    assert probability_of_improvement_interval(np.repeat(one, N_RUNS, axis=0), y) == pytest.approx(
+        probability_of_improvement_interval(one, y))
 
 
 def test_runs_that_differ_widen_the_interval() -> None:
@@ -164,26 +157,15 @@ def test_runs_that_differ_widen_the_interval() -> None:
     assert _width(runs) > 2.5 * _width(pooled)
 
 
-def test_runs_alike_give_about_the_pooled_interval() -> None:
-    # Runs drawn from one distribution: the same centre, and a width larger only by the episodes'
-    # noise counted twice (in the run means' spread, and again when redrawing episodes), a factor
-    # sqrt((n_episodes * B + W) / (B + W)), about sqrt(2 n / (n + 1)) = 1.38 in expectation for
-    # n = 20 episodes and 1.19 for this draw; never near the 4x of runs that differ.
-    runs = interval_estimates({"x": RUNS_ALIKE}, reps=OUR_REPS)["x"]
-    pooled = interval_estimates({"x": _pooled(RUNS_ALIKE)}, reps=OUR_REPS)["x"]
-    assert abs((runs.low + runs.high) - (pooled.low + pooled.high)) / 2 <= 0.05 * _width(pooled)
-    assert 1.0 <= _width(runs) / _width(pooled) <= 1.45
-
-
 def test_interval_equals_per_replicate_recomputation() -> None:
-    # Replays the module's draws (runs, then episodes within each drawn run, from a generator seeded
-    # with seed) and recomputes every replicate from the redrawn arrays, one at a time.
+    # Replays the module's draws (the episodes, the same for every run, then the runs, from a
+    # generator seeded with seed) and recomputes every replicate from the redrawn arrays.
     reps, seed = 400, 11
     rng = np.random.default_rng(seed)
-    runs = rng.integers(0, N_RUNS, size=(reps, N_RUNS, 1))
-    episodes = rng.integers(0, N_EPISODES, size=(reps, N_RUNS, N_EPISODES))
+    episodes = rng.integers(0, N_EPISODES, size=(reps, N_EPISODES))
+    runs = rng.integers(0, N_RUNS, size=(reps, N_RUNS))
     for metric, fn in (("mean", np.mean), ("iqm", iqm)):
-        replicates = [fn(np.stack([RUNS_DIFFER[runs[r, k, 0], episodes[r, k]] for k in range(N_RUNS)]))
+        replicates = [fn(np.stack([RUNS_DIFFER[runs[r, k], episodes[r]] for k in range(N_RUNS)]))
                       for r in range(reps)]
         low, high = np.percentile(replicates, [2.5, 97.5])
         res = interval_estimates({"x": RUNS_DIFFER}, metric, reps=reps, seed=seed)["x"]
@@ -246,18 +228,19 @@ def test_probability_of_improvement_resamples_runs() -> None:
 
 
 def test_probability_of_improvement_equals_per_replicate_recomputation() -> None:
-    # Replays the module's draws (x's runs, x's episodes, then y's) to recompute every replicate.
+    # Replays the module's draws (x's episodes and runs, y's from a second stream) to recompute every
+    # replicate.
     reps, seed = 300, 7
     x, y = RUNS_DIFFER, np.round(RUNS_ALIKE[:2] + 1.0, 1)  # y: two runs, and ties
-    rng = np.random.default_rng(seed)
 
-    def draw(scores: np.ndarray) -> list[np.ndarray]:
+    def draw(scores: np.ndarray, rng: np.random.Generator) -> list[np.ndarray]:
         n_runs, n_episodes = scores.shape
-        runs = rng.integers(0, n_runs, size=(reps, n_runs, 1))
-        episodes = rng.integers(0, n_episodes, size=(reps, n_runs, n_episodes))
-        return [np.concatenate([scores[runs[r, k, 0], episodes[r, k]] for k in range(n_runs)]) for r in range(reps)]
+        episodes = rng.integers(0, n_episodes, size=(reps, n_episodes))
+        runs = rng.integers(0, n_runs, size=(reps, n_runs))
+        return [np.concatenate([scores[runs[r, k], episodes[r]] for k in range(n_runs)]) for r in range(reps)]
 
-    xs, ys = draw(x), draw(y)
+    gx, gy = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    xs, ys = draw(x, gx), draw(y, gy)
     replicates = [np.mean((a[:, None] > b[None, :]) + 0.5 * (a[:, None] == b[None, :])) for a, b in zip(xs, ys,
                                                                                                           strict=True)]
     low, high = np.percentile(replicates, [2.5, 97.5])

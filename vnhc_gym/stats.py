@@ -7,16 +7,20 @@ training run (a training seed) and a column per test episode, every run tested o
 of episodes.  A deterministic controller (a classical baseline) has exactly one run:
 ``scores[None, :]``.
 
-Intervals are percentile intervals of a *two-level* (hierarchical) bootstrap: each replicate
-redraws ``n_runs`` runs with replacement, then, within each drawn run, ``n_episodes`` of its
-episodes with replacement, and computes the statistic on the redrawn episodes.  The first level
-measures how much the result depends on the training seeds, the second how much it depends on the
-test episodes; with a single run only the second is left, and the interval is the ordinary
-bootstrap over episodes.  This is rliable's stratified bootstrap with the runs taking the place of
-its tasks: ``rliable.library.get_interval_estimates({name: scores.T}, func, task_bootstrap=True)``
-(``StratifiedBootstrap`` redraws the columns of the transposed array, then the rows within each
-drawn column) draws replicates from the same distribution; the tests check the two against each
-other.  Scores must be finite.
+Intervals are percentile intervals of a *two-level* bootstrap over the runs and the episodes: each
+replicate redraws ``n_episodes`` test episodes with replacement and ``n_runs`` runs with replacement,
+and computes the statistic on every drawn run's drawn episodes.  The episodes are drawn once per
+replicate, the same for every run, because every run is tested on the same episode seeds: an
+episode that is hard for one run is hard for the others, and redrawing each run's episodes
+independently would average that away (five identical runs would get an interval about sqrt(5)
+narrower than one of them).  The first level measures how much the result depends on the test
+episodes, the second how much it depends on the training seeds; with a single run only the first is
+left, and the interval is the ordinary bootstrap over episodes, as rliable's (the tests check
+it).  The replicate mean's variance is then exactly ``s_runs^2 / n_runs + s_episodes^2 / n_episodes
++ s_rest^2 / (n_runs n_episodes)`` (the plug-in variances of the runs' effects, the episodes'
+effects and the rest of a two-way decomposition of the scores), which the tests check too.  This
+is where the scheme departs from rliable's stratified bootstrap, which redraws the episodes within
+each run independently, as if each run had its own.  Scores must be finite.
 """
 
 from __future__ import annotations
@@ -140,24 +144,23 @@ _METRICS: dict[str, Callable[[NDArray[np.float64]], NDArray[np.float64]]] = {
 # ---------------------------------------------------------------------------------------------
 # Two-level bootstrap
 #
-# rliable draws the same replicates for an interval (``StratifiedBootstrap(scores.T,
-# task_bootstrap=True)``, see the module docstring), but it is only a development dependency of the
-# package, it draws from numpy's global generator (a report or an evaluation would move the state
-# that seeds training) and it loops over replicates in Python; for the probability of improvement
-# it has no two-level resampler at all (``StratifiedIndependentBootstrap`` redraws rows within each
-# column, never the columns).  So the draws are these few lines, and the tests check them against
-# rliable's.
+# rliable has no resampler of this design (its ``StratifiedBootstrap`` redraws the episodes of each
+# run independently), and for the probability of improvement no two-level resampler at all; it is
+# also only a development dependency, draws from numpy's global generator (a report or an
+# evaluation would move the state that seeds training) and loops over replicates in Python.  So the
+# draws are these few lines; the tests check them against rliable's on one run and against the
+# design's exact variance on several.
 
 
 def _draw(rng: np.random.Generator, n_runs: int, n_episodes: int, reps: int) -> NDArray[np.intp]:
     """Indices ``(reps, n_runs * n_episodes)`` into the flattened ``(n_runs, n_episodes)`` scores.
 
-    Level 1: each replicate redraws ``n_runs`` runs with replacement.  Level 2: within each drawn
-    run, ``n_episodes`` of that run's episodes with replacement.  (With one run, level 1 always
-    draws it and consumes no random numbers.)
+    Each replicate draws ``n_episodes`` episodes with replacement, the same for every run (every run
+    is tested on the same episode seeds), then ``n_runs`` runs with replacement.  (The episodes are
+    drawn first, so that a single run's draws are those of any number of identical runs.)
     """
+    episodes = rng.integers(0, n_episodes, size=(reps, 1, n_episodes), dtype=np.intp)
     runs = rng.integers(0, n_runs, size=(reps, n_runs, 1), dtype=np.intp)
-    episodes = rng.integers(0, n_episodes, size=(reps, n_runs, n_episodes), dtype=np.intp)
     return (runs * n_episodes + episodes).reshape(reps, n_runs * n_episodes)
 
 
@@ -180,7 +183,7 @@ def interval_estimates(score_dict: Mapping[str, ArrayLike], metric: str = "mean"
     """Point estimate and two-level bootstrap percentile interval of each algorithm's ``metric``.
 
     The point estimate is ``metric`` over every episode of every run.  Each replicate redraws the
-    runs, then the episodes within each drawn run (see the module docstring), and computes
+    episodes (the same for every run) and the runs (see the module docstring), and computes
     ``metric`` over the redrawn episodes; the interval is the central ``confidence`` range of the
     replicates.  With one run (``scores[None, :]``) this is the ordinary bootstrap over episodes.
 
@@ -234,8 +237,8 @@ def probability_of_improvement_interval(x: ArrayLike, y: ArrayLike, reps: int = 
 
     The point estimate is the mean, over every pair of an episode of X and an episode of Y, of
     ``1[x > y] + 0.5 * 1[x == y]`` (the Mann-Whitney U statistic over ``n_x * n_y``, rliable's
-    ``metrics.probability_of_improvement`` on one task).  Each replicate redraws X's runs and then
-    episodes within each drawn run, independently Y's the same way (a classical baseline's single
+    ``metrics.probability_of_improvement`` on one task).  Each replicate redraws X's episodes and
+    runs as `interval_estimates` does, independently Y's the same way (a classical baseline's single
     run: its episodes only), and computes the same mean on the redrawn episodes.  Higher scores
     are better; negate both arrays for a metric where lower is better.
 
@@ -250,8 +253,8 @@ def probability_of_improvement_interval(x: ArrayLike, y: ArrayLike, reps: int = 
     confidence : float, optional
         Coverage of the two-sided interval, in ``(0, 1)``.
     seed : int or None, optional
-        Seed of the resampling (X's draws first, then Y's, from one generator); ``None`` draws
-        fresh entropy.
+        Seed of the resampling (X's and Y's draws from two streams spawned from it); ``None``
+        draws fresh entropy.
 
     Returns
     -------
@@ -271,8 +274,9 @@ def probability_of_improvement_interval(x: ArrayLike, y: ArrayLike, reps: int = 
     # count-weighted mean, so no pair is compared again per replicate.
     a, b = xa.reshape(-1, 1), ya.reshape(1, -1)
     win = (a > b) + 0.5 * (a == b)
-    rng = np.random.default_rng(seed)
-    cx = _counts(_draw(rng, xa.shape[0], xa.shape[1], int(reps)), nx)
-    cy = _counts(_draw(rng, ya.shape[0], ya.shape[1], int(reps)), ny)
+    # X and Y draw from two streams of the seed, so that Y's draws do not depend on X's shape.
+    gx, gy = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    cx = _counts(_draw(gx, xa.shape[0], xa.shape[1], int(reps)), nx)
+    cy = _counts(_draw(gy, ya.shape[0], ya.shape[1], int(reps)), ny)
     replicates = np.sum((cx @ win) * cy, axis=1) / (nx * ny)
     return Interval(float(np.mean(win)), *_percentile_bounds(replicates, confidence))

@@ -33,7 +33,7 @@ def _episodes(rs: list[dict[str, Any]], metric: str) -> NDArray[np.float64]:
 
 def _by_run(rs: list[dict[str, Any]], metric: str) -> NDArray[np.float64]:
     """The test episodes' values of ``metric``, a row per run: ``(n_runs, n_episodes)``, the shape the
-    intervals of `vnhc_gym.stats` resample (the runs, then the episodes within each)."""
+    intervals of `vnhc_gym.stats` resample (the runs, and the episodes shared by them)."""
     rows = [np.asarray(r["test"]["metrics"][metric], dtype=np.float64) for r in rs]
     if len({row.size for row in rows}) > 1:
         raise ValueError(f"the runs of one cell and algorithm must have as many test episodes each, got "

@@ -24,8 +24,8 @@ def report(out: str | Path, reps: int = REPORT_REPS, log: Callable[[str], None] 
 
     Per cell (environment, scenario) and algorithm: the mean ``score`` over the test episodes of
     all its runs with its 95 % two-level bootstrap interval (`vnhc_gym.stats.interval_estimates`:
-    the training runs redrawn, then the episodes within each drawn run; a classical baseline or the
-    oracle is one run), the success rate (episodes that reached the time limit), and the
+    the test episodes redrawn, the same for every run, and the training runs; a classical baseline
+    or the oracle is one run), the success rate (episodes that reached the time limit), and the
     diagnostics (the IQM of the completed steps' ``mean |phi~|``, the termination-aware mean
     ``|phi~|``).  The cell's best classical baseline and its best learned agent are the ones with
     the highest *validation* score (chosen without the test episodes); the oracle is the headroom

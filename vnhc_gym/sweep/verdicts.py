@@ -147,8 +147,8 @@ def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, An
              "a failed episode's remaining steps count 0), its 95 % bootstrap interval and the success rate "
              "(episodes that reached the time limit). P: the probability that an episode of the best learned agent "
              "scores above one of the best classical baseline's, with its 95 % interval (**bold**: above 0.5). "
-             "A learned agent's intervals redraw its training runs, then the test episodes within each run; a "
-             "classical baseline is one run. Each verdict names the runs x episodes it rests on.", "",
+             "A learned agent's intervals redraw its training runs and the test episodes (the same seeds in every "
+             "run); a classical baseline is one run. Each verdict names the runs x episodes it rests on.", "",
              "| env | scenario | oracle | best classical | best learned | P | steps / s to parity | verdict |",
              "|---|---|---|---|---|---|---|---|"]
     verdicts = []
