@@ -18,6 +18,7 @@ import vnhc_gym.tasks
 from vnhc_gym.baselines import GeometricController
 from vnhc_gym.baselines.kalman import (
     EKF,
+    FilterNoise,
     InformedKalmanController,
     KalmanController,
     correct,
@@ -272,18 +273,18 @@ def test_the_pure_filter_estimates_what_the_controller_estimates(env_id: str) ->
     venv = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point", scenario="noisy")
     ctrl = KalmanController(venv, gain=10.0, q=0.01)
     task = ctrl.task
-    ekf = EKF.of(task, q=0.01, q_params=ctrl.q_params)
-    sigma, dt = float(task.config.obs_noise), float(task.config.dt)
+    ekf = EKF.of(task)
+    noise = FilterNoise(float(task.config.dt), float(task.config.obs_noise), 0.01, ctrl.q_params)
     obs, _ = venv.reset(seed=7)
     f, u = None, None
     with jax.enable_x64(True):
         start = jax.jit(jax.vmap(ekf.start, in_axes=(0, None, None, None)))
-        update = jax.jit(jax.vmap(ekf.update, in_axes=(0, 0, 0, None, None, None, None)))
+        update = jax.jit(jax.vmap(ekf.update, in_axes=(0, 0, 0, None, None, None)))
         for _ in range(30):
             action, _ = ctrl.predict(obs)
             o = np.asarray(obs, dtype=np.float64)
-            f = start(o, task.nominal, sigma, task.args) if f is None else update(f, o, u, task.nominal, dt, sigma,
-                                                                                   task.args)
+            f = (start(o, task.nominal, task.args, noise.sigma) if f is None
+                 else update(f, o, u, task.nominal, task.args, noise))
             x, p = jax.vmap(ekf.estimate)(f)
             want_x, want_p = ctrl._estimate
             np.testing.assert_allclose(np.asarray(x), want_x, rtol=1e-7, atol=1e-8)
@@ -294,7 +295,10 @@ def test_the_pure_filter_estimates_what_the_controller_estimates(env_id: str) ->
     assert np.abs(np.asarray(x) - task.controller_inputs(np.asarray(obs))[0]).max() > 0  # not the raw read-back
 
 
-def test_the_pure_filter_names_a_task_without_a_chart() -> None:
-    task = gym.make(SLED).unwrapped.task
+def test_filters_of_one_task_are_equal_and_share_their_programs() -> None:
+    """Two controllers of the sled (other gains, other noise settings) run one filter's compiled code."""
+    env = gym.make(SLED, scenario="noisy")
+    a, b = KalmanController(env, gain=5.0, q=1e-4), KalmanController(env, gain=80.0, q=1e-2, variant="sampled")
+    assert a.ekf == b.ekf and hash(a.ekf) == hash(b.ekf)
     with pytest.raises(ValueError, match="q"):
-        EKF.of(task, q=-1.0)
+        KalmanController(env, q=-1.0)

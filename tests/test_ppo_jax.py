@@ -263,9 +263,9 @@ def test_the_jax_backend_refuses_what_it_does_not_train() -> None:
         train(TrainConfig(backend="tf"))
     with pytest.raises(ValueError, match=r"trains \['ppo', 'residual_ppo', 'sac', 'residual_sac'\] only"):
         train(TrainConfig(algo="recurrent_ppo", backend="jax"))
-    with pytest.raises(ValueError, match="got base 'kalman'"):  # a base with a filter state
-        train(TrainConfig(algo="residual_ppo", backend="jax", residual_base="kalman"))
-    with pytest.raises(ValueError, match=r"takes gain and variant, got \['alpha'\]"):
+    with pytest.raises(ValueError, match="got base 'observer'"):  # a base not written in JAX
+        train(TrainConfig(algo="residual_ppo", backend="jax", residual_base="observer"))
+    with pytest.raises(ValueError, match=r"takes gain, variant, got \['alpha'\]"):
         train(TrainConfig(algo="residual_ppo", backend="jax", residual_base_settings={"alpha": 0.1}))
     from vnhc_gym.training.run_jax import train_seeds
 

@@ -14,8 +14,12 @@ the local current a boat reads from its observation) with its covariance ``P``:
 * **correct** with the observation itself: the measurement model is the task's own observation of
   a state ([`observation_of`][vnhc_gym.tasks.base.Task.observation_of]), so every entry the agent
   sees counts, the observed ``phi`` entries included; ``R = sigma^2 I`` with the environment's own
-  observation noise ``sigma`` (``obs_noise``, which it declares).  The numpy functions of the task
-  (the frame change, the observation) are differentiated by central differences.
+  observation noise ``sigma`` (``obs_noise``, which it declares).
+
+Every Jacobian is exact, by forward-mode differentiation of the task's pure functions: the filter is
+`EKF`, pure JAX functions of one episode, which the controller runs batched over its rows and the
+compiled backend's residual learners run inside their training program
+(`vnhc_gym.wrappers.residual_jax.kalman_base`).
 
 The process noise is white noise on the accelerations, ``Q = q^2 [[dt^3/3, dt^2/2], [dt^2/2, dt]]``
 per coordinate (``q`` is tuned on validation episodes beside the law's gain: it stands for the
@@ -35,7 +39,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import cache, partial
+from functools import cache
 from typing import Any, NamedTuple
 
 import jax
@@ -49,7 +53,8 @@ from vnhc_gym.envs.config import check_number
 from vnhc_gym.mechanics import functional as F
 from vnhc_gym.tasks.base import Task
 
-__all__ = ["EKF", "FilterState", "InformedKalmanController", "KalmanController", "correct", "predict", "process_noise"]
+__all__ = ["EKF", "FilterNoise", "FilterState", "InformedKalmanController", "KalmanController", "correct", "predict",
+           "process_noise"]
 
 Array = NDArray[np.float64]
 
@@ -69,25 +74,6 @@ def predict(system: Any, dt: float, substeps: int, filtered: tuple[int, ...], z:
 
     a = jax.jacfwd(step)(z)
     return step(z), a @ cov @ a.T + q_mat
-
-
-@cache
-def _batched_predict(system: Any, dt: float, substeps: int, filtered: tuple[int, ...]) -> Any:
-    """`predict` compiled for a batch, once per system and step: every controller of the same task
-    and step shares it (JAX compiles a jitted function once per function object)."""
-    return jax.jit(jax.vmap(partial(predict, system, dt, substeps, filtered), in_axes=(0, 0, 0, 0, None)))
-
-
-def _jacobian(f: Any, z: Array, h: float = 1e-6) -> Array:
-    """Central differences ``(B, m, k)`` of a batched numpy function ``f: (N, k) -> (N, m)`` at
-    ``z (B, k)``, in one call of ``f``."""
-    b, k = z.shape
-    bumped = np.repeat(z[:, None, :], 2 * k, axis=1)
-    idx = np.arange(k)
-    bumped[:, idx, idx] += h
-    bumped[:, k + idx, idx] -= h
-    out = f(bumped.reshape(-1, k)).reshape(b, 2 * k, -1)
-    return ((out[:, :k] - out[:, k:]) / (2 * h)).transpose(0, 2, 1)
 
 
 def process_noise(n: int, dt: Any, q: float) -> Any:
@@ -124,18 +110,6 @@ def correct(pred: Any, prior: Any, expected: Any, jac: Any, obs: Any, var: Any) 
     return pred + gain @ innovation, rest @ prior @ rest.T + var * gain @ gain.T
 
 
-#: `correct` compiled for a batch (the numpy controllers' rows).
-_batched_correct = jax.jit(jax.vmap(correct, in_axes=(0, 0, 0, 0, 0, None)))
-
-
-def _correct_rows(pred: Array, prior: Array, expected: Array, jac: Array, obs: Array, var: float
-                  ) -> tuple[Array, Array]:
-    """`correct` on every row of a batch, in float64, as writable numpy arrays."""
-    with jax.enable_x64(True):
-        x, cov = _batched_correct(pred, prior, expected, jac, obs, var)
-    return np.array(x, dtype=np.float64), np.array(cov, dtype=np.float64)
-
-
 class FilterState(NamedTuple):
     """One episode's filter: the estimate ``z = (x, theta)``, its covariance, and the parameters read
     from the last observation (those the filter does not estimate)."""
@@ -145,13 +119,30 @@ class FilterState(NamedTuple):
     base: Any
 
 
-@dataclass(frozen=True, eq=False)
+class FilterNoise(NamedTuple):
+    """What an update of the filter reads besides the episode: the control period ``dt``, the
+    observation noise ``sigma``, the process noise ``q`` and the filtered parameters' random walk
+    ``q_params`` (a pytree: changing them recompiles nothing)."""
+
+    dt: Any
+    sigma: Any
+    q: Any
+    q_params: Any
+
+
+@dataclass(frozen=True)
 class EKF:
     """`KalmanController`'s filter for one episode as pure JAX functions: `start` on an episode's
     first observation, `update` on each next one (told the force applied since), `estimate` for the
-    law.  Batched by ``jax.vmap`` and compiled with its environment, it is the base of the compiled
-    backend's residual learners (`vnhc_gym.wrappers.residual_jax.kalman_base`).  Jacobians are exact
-    (forward-mode differentiation of the task's pure functions).  Build it with `EKF.of`.
+    law.  Batched by ``jax.vmap``, it runs the numpy controllers' rows and, compiled with its
+    environment, the compiled backend's residual learners
+    (`vnhc_gym.wrappers.residual_jax.kalman_base`).  Jacobians are exact (forward-mode
+    differentiation of the task's pure functions).  Build it with `EKF.of`; two filters of the same
+    task are equal, so they share their compiled programs.
+
+    ``told`` and ``chart`` (the informed reference, `InformedKalmanController`): parameters that
+    replace the filtered ones and those read from the observation, and the parameters the
+    observation is computed with (default: the estimate's).
     """
 
     system: Any  #: the controller model's printed functions
@@ -161,11 +152,9 @@ class EKF:
     drift: Callable[..., Any] | None  #: the task module's ``parameter_drift(s, p, args)``, if any
     filtered: tuple[int, ...]  #: the indices of the filtered parameters
     substeps: int
-    q: float
-    q_params: float
 
     @classmethod
-    def of(cls, task: Task, q: float = 1.0, q_params: float = 0.03) -> EKF:
+    def of(cls, task: Task) -> EKF:
         """The filter of a configured task (its controller model, measurement model and frame)."""
         chart = getattr(sys.modules[type(task).__module__], "controller_inputs", None)
         if not callable(chart):
@@ -179,8 +168,7 @@ class EKF:
         move, drift = task.frame_functions()
         return cls(system=task.controller_functions(), chart=chart, seen=task.observation_model(), move=move,
                    drift=drift, filtered=tuple(names.index(p) for p in task.filtered_params),
-                   substeps=int(task.config.substeps), q=check_number("q", q, low=0.0, high=1e6),
-                   q_params=check_number("q_params", q_params, low=0.0, high=1e6))
+                   substeps=int(task.config.substeps))
 
     @property
     def dim(self) -> int:
@@ -191,27 +179,29 @@ class EKF:
         """The controller model's parameters: ``base`` with the filtered entries from ``z``."""
         return base.at[jnp.asarray(self.filtered, dtype=jnp.int32)].set(z[self.dim:]) if self.filtered else base
 
-    def read(self, obs: Any, p_nominal: Any, args: Any) -> tuple[Any, Any]:
-        """``z`` read back from an observation, and the parameters."""
+    def read(self, obs: Any, p_nominal: Any, args: Any, told: Any = None) -> tuple[Any, Any]:
+        """``z`` read back from an observation, and the parameters (``told`` ones if given)."""
         y, py = self.chart(obs, p_nominal, args)
+        if told is not None:
+            py = told
         return jnp.concatenate([y, py[jnp.asarray(self.filtered, dtype=jnp.int32)]]), py
 
-    def start(self, obs: Any, p_nominal: Any, sigma: Any, args: Any) -> FilterState:
+    def start(self, obs: Any, p_nominal: Any, args: Any, sigma: Any, told: Any = None) -> FilterState:
         """The filter at an episode's first observation: ``z`` read back from it, with the covariance
         ``sigma^2 J J^T`` that independent noise ``sigma`` on each entry gives it (``J = dz/dobs``)."""
-        z, base = self.read(obs, p_nominal, args)
-        jac = jax.jacfwd(lambda o: self.read(o, p_nominal, args)[0])(obs)
+        z, base = self.read(obs, p_nominal, args, told)
+        jac = jax.jacfwd(lambda o: self.read(o, p_nominal, args, told)[0])(obs)
         return FilterState(z, sigma**2 * jac @ jac.T + 1e-12 * jnp.eye(z.shape[0], dtype=z.dtype), base)
 
-    def update(self, f: FilterState, obs: Any, u: Any, p_nominal: Any, dt: Any, sigma: Any, args: Any
-               ) -> FilterState:
+    def update(self, f: FilterState, obs: Any, u: Any, p_nominal: Any, args: Any, noise: FilterNoise,
+               told: Any = None, chart: Any = None) -> FilterState:
         """Predict one control period with the applied force ``u`` (carried into the frame of the new
         observation, plus the filtered parameters' random walk), then correct with the observation
         (``R = max(sigma, 1e-6)^2 I``).  A non-finite result restarts from the observation."""
         dim, idx = self.dim, jnp.asarray(self.filtered, dtype=jnp.int32)
         k = f.z.shape[0]
-        q_mat = jnp.zeros((k, k), f.z.dtype).at[:dim, :dim].set(process_noise(dim // 2, dt, self.q))
-        pred, prior = predict(self.system, dt, self.substeps, self.filtered, f.z, f.cov, f.base, u, q_mat)
+        q_mat = jnp.zeros((k, k), f.z.dtype).at[:dim, :dim].set(process_noise(dim // 2, noise.dt, noise.q))
+        pred, prior = predict(self.system, noise.dt, self.substeps, self.filtered, f.z, f.cov, f.base, u, q_mat)
         moved = self.params(pred, f.base)
         if self.move is not None:
             move = self.move
@@ -223,24 +213,41 @@ class EKF:
             jac = jax.jacfwd(frame)(pred)
             moved = move(pred[:dim], moved, args)[1]
             pred, prior = frame(pred), jac @ prior @ jac.T
+
+        def drift(x: Any, p: Any) -> Any:
+            return self.drift(x, p, args) if self.drift is not None else jnp.zeros((dim, k - dim), x.dtype)
+
+        if self.filtered and told is not None:
+            # Told parameters replace the predicted ones exactly, and carry the state with them as their
+            # random walk would (the current at a boat moves its ground velocity); they have no variance.
+            x = pred[:dim] + drift(pred[:dim], moved) @ (told[idx] - pred[dim:])
+            pred, moved = jnp.concatenate([x, told[idx]]), moved.at[idx].set(told[idx])
+            prior = prior.at[dim:, :].set(0.0).at[:, dim:].set(0.0)
         if self.filtered:
-            drift = (self.drift(pred[:dim], moved, args) if self.drift is not None
-                     else jnp.zeros((dim, k - dim), pred.dtype))
-            g = jnp.concatenate([drift, jnp.eye(k - dim, dtype=pred.dtype)])
-            prior = prior + self.q_params**2 * dt * g @ g.T
-        fresh = self.start(obs, p_nominal, sigma, args)
+            g = jnp.concatenate([drift(pred[:dim], moved), jnp.eye(k - dim, dtype=pred.dtype)])
+            prior = prior + noise.q_params**2 * noise.dt * g @ g.T
+        fresh = self.start(obs, p_nominal, args, noise.sigma, told)
 
         def seen(zz: Any) -> Any:
             p = self.params(zz, fresh.base)
-            return self.seen(zz[:dim], p, p, args)
+            return self.seen(zz[:dim], p, p if chart is None else chart, args)
 
-        z, cov = correct(pred, prior, seen(pred), jax.jacfwd(seen)(pred), obs, jnp.maximum(sigma, 1e-6) ** 2)
+        z, cov = correct(pred, prior, seen(pred), jax.jacfwd(seen)(pred), obs, jnp.maximum(noise.sigma, 1e-6) ** 2)
         bad = ~(jnp.all(jnp.isfinite(z)) & jnp.all(jnp.isfinite(cov)))
         return FilterState(jnp.where(bad, fresh.z, z), jnp.where(bad, fresh.cov, cov), fresh.base)
 
     def estimate(self, f: FilterState) -> tuple[Any, Any]:
         """The controller state and parameters the law acts on."""
         return f.z[:self.dim], self.params(f.z, f.base)
+
+
+@cache
+def _batched(ekf: EKF) -> tuple[Any, Any, Any]:
+    """`EKF.start`, `update` and `estimate` compiled for a batch of rows, once per filter: every
+    controller of the same task shares them (the noise settings are arguments, not constants)."""
+    start = jax.jit(jax.vmap(ekf.start, in_axes=(0, 0, None, None, 0)))
+    update = jax.jit(jax.vmap(ekf.update, in_axes=(0, 0, 0, 0, None, None, 0, 0)))
+    return start, update, jax.jit(jax.vmap(ekf.estimate))
 
 
 class KalmanController(ObserverController):
@@ -278,94 +285,26 @@ class KalmanController(ObserverController):
         self.variant = variant
         self.q = check_number("q", q, low=0.0, high=1e6)
         self.q_params = check_number("q_params", q_params, low=0.0, high=1e6)
-        self.system = self.model.functions
         self.sigma = float(self.task.config.obs_noise)
         self.name = "kalman"
-        names = list(self.model.param_names)
-        unknown = [p for p in self.task.filtered_params if p not in names]
-        if unknown:
-            raise ValueError(f"task {self.task.name!r}: filtered_params {unknown} are not parameters of "
-                             f"{self.model.name!r} {names}")
-        self._filtered = tuple(names.index(p) for p in self.task.filtered_params)
-        self._dim = 2 * self.model.n
-        k = self._dim + len(self._filtered)
-        self._q_state = np.zeros((k, k))  # the acceleration noise, on the state only
-        with jax.enable_x64(True):
-            self._q_state[:self._dim, :self._dim] = np.asarray(process_noise(self.model.n, float(self.dt), self.q))
-        self._cov: Array | None = None
+        self.ekf = EKF.of(self.task)
+        self._dim = self.ekf.dim
+        self._filter: FilterState | None = None
         self._base: Array | None = None  # the parameters the filter does not estimate (B, n_params)
-        self._predict = _batched_predict(self.system, float(self.dt), int(self.substeps), self._filtered)
 
     def __repr__(self) -> str:
         return (f"KalmanController({self.task.name!r}, gain={self.gain.tolist()}, q={self.q}, "
                 f"q_params={self.q_params}, variant={self.variant!r})")
 
-    def _parameter_walk(self, z: Array, params: Array) -> Array:
-        """The covariance ``(B, k, k)`` of one step of the filtered parameters' random walk, added in
-        the frame of the next observation (where the field differs from its local model): ``q_params^2
-        dt G G^T`` with ``G = [D; I]``, ``D`` the state each parameter carries
-        ([`parameter_drift`][vnhc_gym.tasks.base.Task.parameter_drift])."""
-        b, k = z.shape
-        g = np.zeros((b, k, k - self._dim))
-        g[:, :self._dim] = self.task.parameter_drift(z[:, :self._dim], params)
-        g[:, self._dim:] = np.eye(k - self._dim)
-        return self.q_params**2 * self.dt * g @ g.transpose(0, 2, 1)
-
-    # ------------------------------------------------------------------ the filter's state z = (x, theta)
-    def _read(self, obs: Array) -> tuple[Array, Array]:
-        """``z`` read back from observations, and the parameters."""
-        y, py = self.task.controller_inputs(obs)
-        return np.concatenate([y, py[:, list(self._filtered)]], axis=1), py
-
     def _params(self, z: Array, base: Array) -> Array:
+        """The controller model's parameters of a batch: ``base`` with the filtered entries from ``z``."""
         p = base.copy()
-        p[:, list(self._filtered)] = z[:, self._dim:]
+        p[:, list(self.ekf.filtered)] = z[:, self._dim:]
         return p
 
-    def _read_cov(self, obs: Array) -> Array:
-        """The covariance ``sigma^2 J J^T`` of ``z`` read back from an observation with independent
-        noise ``sigma`` on every entry."""
-        b, d = obs.shape
-        k = self._dim + len(self._filtered)
-        if self.sigma == 0.0:
-            return np.zeros((b, k, k))
-
-        def read(o: Array) -> Array:
-            z = self._read(o)[0]
-            return z
-
-        jac = _jacobian(read, obs)
-        for j in self.task.angles:  # a read-back angle near +-pi may wrap between the two sides
-            jac[:, j] = (jac[:, j] * 2e-6 + np.pi) % (2 * np.pi) - np.pi
-            jac[:, j] /= 2e-6
-        return self.sigma**2 * jac @ jac.transpose(0, 2, 1)
-
-    def _recenter(self, z: Array, cov: Array, base: Array) -> tuple[Array, Array, Array]:
-        """``z`` in the frame of the next read-back (`Task.recenter`), its covariance carried through
-        the change of frame's Jacobian, and the parameters."""
-        if self.task.frame_functions()[0] is None:
-            return z, cov, base
-        b = z.shape[0]
-
-        def move(zz: Array) -> Array:
-            x, p = self.task.recenter(zz[:, :self._dim], self._params(zz, np.repeat(base, zz.shape[0] // b, axis=0)))
-            return np.concatenate([x, p[:, list(self._filtered)]], axis=1)
-
-        jac = _jacobian(move, z)
-        x, p = self.task.recenter(z[:, :self._dim], self._params(z, base))
-        return np.concatenate([x, p[:, list(self._filtered)]], axis=1), jac @ cov @ jac.transpose(0, 2, 1), p
-
-    def _correct(self, z: Array, prior: Array, base: Array, obs: Array) -> tuple[Array, Array]:
-        """The Kalman update with the observation itself as the measurement: ``h`` is the task's
-        [`observation_of`][vnhc_gym.tasks.base.Task.observation_of], ``H`` its Jacobian (central
-        differences of the task's numpy function), ``R = sigma^2 I``."""
-        b = z.shape[0]
-
-        def seen(zz: Array) -> Array:
-            return self.task.observation_of(zz[:, :self._dim], self._params(zz, np.repeat(base, zz.shape[0] // b, 0)))
-
-        var = max(self.sigma, 1e-6) ** 2  # a floor: with no noise the filter follows the observation
-        return _correct_rows(z, prior, seen(z), _jacobian(seen, z), obs, var)
+    def _told(self, rows: int) -> tuple[Array | None, Array | None]:
+        """The parameters told to the filter and the observation's own, per row (none: the filter's)."""
+        return None, None
 
     def law(self, states: Array, params: Array) -> tuple[Array, NDArray[np.bool_]]:
         """The law of the chosen ``variant`` on the estimate (``u = 0`` on flagged rows)."""
@@ -373,26 +312,28 @@ class KalmanController(ObserverController):
         return self.held(u, singular, states, params), singular
 
     def estimate(self, obs: Array) -> tuple[Array, Array]:
-        z_read, base = self._read(obs)
-        b = z_read.shape[0]
-        fresh_cov = self._read_cov(obs) + 1e-12 * np.eye(z_read.shape[1])
-        if self._x is None or self._x.shape[0] != b or self._u is None or self._fresh is None \
-                or self._cov is None or self._base is None:
-            self._x, self._cov, self._base = z_read.copy(), fresh_cov, base
-            self._u = np.zeros((b, self.act_dim))
-            self._fresh = np.zeros(b, dtype=bool)
-            return self._x[:, :self._dim], self._params(self._x, base)
+        o = np.asarray(obs, dtype=np.float64)
+        b = o.shape[0]
+        told, chart = self._told(b)
+        start, update, estimate = _batched(self.ekf)
+        nominal = np.broadcast_to(np.asarray(self.task.nominal, dtype=np.float64), (b, len(self.task.nominal)))
+        noise = FilterNoise(float(self.dt), self.sigma, self.q, self.q_params)
         with jax.enable_x64(True):  # scoped: the filter needs float64, the user's settings stay
-            pred, prior = self._predict(self._x, self._cov, self._base, self._u, self._q_state)
-            pred, prior = np.array(pred, dtype=np.float64), np.array(prior, dtype=np.float64)
-        pred, prior, moved = self._recenter(pred, prior, self._base)
-        prior += self._parameter_walk(pred, moved)
-        z, cov = self._correct(pred, prior, base, np.asarray(obs, dtype=np.float64))
-        bad = self._fresh | ~np.isfinite(z).all(axis=1) | ~np.isfinite(cov).all(axis=(1, 2))
-        z[bad], cov[bad] = z_read[bad], fresh_cov[bad]
-        self._x, self._cov, self._base = z, cov, base
+            fresh = start(o, nominal, self.task.args, self.sigma, told)
+            if self._x is None or self._x.shape[0] != b or self._filter is None or self._u is None \
+                    or self._fresh is None:
+                f = fresh
+                self._u = np.zeros((b, self.act_dim))
+                self._fresh = np.zeros(b, dtype=bool)
+            else:
+                f = update(self._filter, o, self._u, nominal, self.task.args, noise, told, chart)
+                restart = self._fresh
+                f = jax.tree.map(lambda a, c: np.where(restart.reshape(-1, *([1] * (a.ndim - 1))), a, c), fresh, f)
+            x, p = (np.array(v, dtype=np.float64) for v in estimate(f))
+        self._filter = f
+        self._x, self._base = np.array(f.z, dtype=np.float64), np.array(f.base, dtype=np.float64)
         self._fresh[:] = False
-        return z[:, :self._dim], self._params(z, base)
+        return x, p
 
 
 class InformedKalmanController(KalmanController):
@@ -418,65 +359,22 @@ class InformedKalmanController(KalmanController):
     def __init__(self, env: Any, gain: ArrayLike = DEFAULT_GAIN, q: float = 1.0, variant: str = "plain") -> None:
         from vnhc_gym.baselines.oracle import _batch_of
 
-        # No random walk of the told parameters: their change moves the state exactly (`_recenter`),
+        # No random walk of the told parameters: their change moves the state exactly (`EKF.update`),
         # where the filter's walk spreads it as variance of the parameters and, with them, of the state.
         super().__init__(env, gain, q=q, q_params=0.0, variant=variant)
         self.batch = _batch_of(env)
-        self._told = np.zeros((0, len(self.model.param_names)))  # this step's told parameters (B, n_params)
-        self._chart = self._told  # and the nominal ones the observation is computed with
         self.name = "informed_kalman"
 
     def __repr__(self) -> str:
         return (f"InformedKalmanController({self.task.name!r}, gain={self.gain.tolist()}, q={self.q}, "
                 f"variant={self.variant!r})")
 
-    def _read(self, obs: Array) -> tuple[Array, Array]:
-        """``z`` read back from observations, with the true parameters (and the filtered ones told)."""
-        y, _ = self.task.controller_inputs(obs)
+    def _told(self, rows: int) -> tuple[Array | None, Array | None]:
+        """The true parameters at the true states of the environment's rows, and the nominal ones the
+        environment observes with (the boat's chart of the current), which under mismatch differ."""
         buf = self.batch.buf
-        rows = buf.state.shape[0]
-        p = self.task.informed_params(buf.state, buf.params_true)
-        if y.shape[0] == rows:
-            self._told = p
-            self._chart = self.task.informed_params(buf.state, buf.params_nominal)
-        # Several observations a row: the bumped copies of `_jacobian`, row-major like np.repeat.
-        p = np.repeat(p, y.shape[0] // rows, axis=0)
-        return np.concatenate([y, p[:, list(self._filtered)]], axis=1), p
-
-    def estimate(self, obs: Array) -> tuple[Array, Array]:
-        rows = self.batch.buf.state.shape[0]
-        if np.shape(obs)[0] != rows:
-            raise ValueError(f"the informed filter acts on all {rows} rows of its environment at once, got "
-                             f"{np.shape(obs)[0]} observations")
-        return super().estimate(obs)
-
-    def _correct(self, z: Array, prior: Array, base: Array, obs: Array) -> tuple[Array, Array]:
-        """As the filter's, with the environment's own measurement: ``phi`` from the true parameters, the
-        rest of the observation from the nominal ones it reports (the boat's chart of the current),
-        which under mismatch differ."""
-        b = z.shape[0]
-
-        def seen(zz: Array) -> Array:
-            reps = zz.shape[0] // b
-            return self.task.observation_of(zz[:, :self._dim], self._params(zz, np.repeat(base, reps, 0)),
-                                            chart=np.repeat(self._chart, reps, 0))
-
-        var = max(self.sigma, 1e-6) ** 2
-        return _correct_rows(z, prior, seen(z), _jacobian(seen, z), obs, var)
-
-    def _recenter(self, z: Array, cov: Array, base: Array) -> tuple[Array, Array, Array]:
-        """As the filter's, then the told parameters replace the predicted ones, and carry the state
-        with them as their random walk would ([`parameter_drift`][vnhc_gym.tasks.base.Task.parameter_drift]:
-        the current at a boat moves its ground velocity); told exactly, they have no variance."""
-        z, cov, p = super()._recenter(z, cov, base)
-        if not self._filtered:
-            return z, cov, p
-        cols, dim = list(self._filtered), self._dim
-        told = self._told[:, cols]
-        z, cov, p = z.copy(), cov.copy(), p.copy()
-        z[:, :dim] += np.einsum("bik,bk->bi", self.task.parameter_drift(z[:, :dim], p), told - z[:, dim:])
-        z[:, dim:] = told
-        p[:, cols] = told
-        cov[:, dim:, :] = 0.0
-        cov[:, :, dim:] = 0.0
-        return z, cov, p
+        if rows != buf.state.shape[0]:
+            raise ValueError(f"the informed filter acts on all {buf.state.shape[0]} rows of its environment at once, "
+                             f"got {rows} observations")
+        return (self.task.informed_params(buf.state, buf.params_true),
+                self.task.informed_params(buf.state, buf.params_nominal))

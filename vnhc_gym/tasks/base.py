@@ -39,7 +39,9 @@ __all__ = ["Task"]
 
 Array = NDArray[np.float64]
 
-#: The compiled, batched observation of `Task.observation_of`, by task class and printed system.
+#: `Task.observation_model` and its compiled, batched form (`Task.observation_of`), by task class and
+#: printed system.
+_OBSERVATION_MODELS: dict[tuple[type, Any], Any] = {}
 _OBSERVATIONS: dict[tuple[type, Any], Any] = {}
 #: The compiled, batched pure functions of a task module (`Task.controller_inputs`, `_batched`).
 _CHARTS: dict[Any, Any] = {}
@@ -381,6 +383,9 @@ class Task:
         differ from the true ones that drive ``phi`` under mismatch), and the ``unmeasured`` entries
         NaN (a filter's measurement model)."""
         system = self.controller_functions()
+        key = (type(self), system)
+        if key in _OBSERVATION_MODELS:  # one function a task and system: equal filters share compiled code
+            return _OBSERVATION_MODELS[key]
         observation = sys.modules[type(self).__module__].observation
         if "system" in inspect.signature(observation).parameters:
             observation = partial(observation, system=system)
@@ -389,6 +394,7 @@ class Task:
         def one(s: Any, p: Any, chart: Any, args: Any) -> Any:
             return observation(s, system.phi(s, p), chart, args).at[unmeasured].set(np.nan)
 
+        _OBSERVATION_MODELS[key] = one
         return one
 
     def observation_of(self, states: Array, params: Array, chart: Array | None = None) -> Array:

@@ -19,7 +19,8 @@ from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
-from vnhc_gym.baselines.kalman import EKF
+from vnhc_gym.baselines.kalman import EKF, FilterNoise
+from vnhc_gym.envs.config import check_number
 from vnhc_gym.envs.functional import EnvParams, EnvState, FunctionalEnv, Step
 from vnhc_gym.mechanics import functional as core
 from vnhc_gym.tasks.base import Task
@@ -107,15 +108,16 @@ def kalman_base(env: FunctionalEnv, task: Task, gain: Any = 5.0, variant: str = 
     ``task`` is the configured task of ``env`` (``gym.make(...).unwrapped.task``): the filter's model,
     measurement model and frame.
     """
-    ekf = EKF.of(task, q=q, q_params=q_params)
+    ekf = EKF.of(task)
+    q, q_params = check_number("q", q, low=0.0, high=1e6), check_number("q_params", q_params, low=0.0, high=1e6)
     action = _law_action(env, gain, variant, iters)
 
     def start(obs: Array, p_nominal: Array, params: EnvParams) -> Any:
-        return ekf.start(obs, p_nominal, params.obs_noise, params.args)
+        return ekf.start(obs, p_nominal, params.args, params.obs_noise)
 
     def update(memory: Any, obs: Array, applied: Array, p_nominal: Array, params: EnvParams) -> Any:
         u = jnp.clip(applied, -1.0, 1.0) * params.force_bound
-        return ekf.update(memory, obs, u, p_nominal, params.dt, params.obs_noise, params.args)
+        return ekf.update(memory, obs, u, p_nominal, params.args, FilterNoise(params.dt, params.obs_noise, q, q_params))
 
     def act(memory: Any, p_nominal: Array, params: EnvParams) -> Array:
         s, p = ekf.estimate(memory)
