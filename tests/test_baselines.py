@@ -378,6 +378,44 @@ def test_adaptive_estimates_move_towards_the_true_parameters(env: str) -> None:
     venv.close()
 
 
+def test_the_adaptive_update_is_the_kalman_formula_on_the_steps_derivative() -> None:
+    """One update of the adaptive law's filter on the boat (a frame that moves, three parameters)
+    equals the Kalman formula written out in numpy, with the prediction's derivative in the
+    log-ratios by central differences of the model's own step: theta + P H^T (H P H^T + R)^-1 (y - h)."""
+    import jax
+
+    from vnhc_gym.baselines.adaptive import correct_estimate
+
+    task = gym.make(USV).unwrapped.task
+    model, index = task.controller_model(), [task.controller_model().param_names.index(k) for k in task.uncertain]
+    rng = np.random.default_rng(4)
+    x = np.array([0.0, 0.0, 0.3, 0.8, -0.2, 0.1])
+    p = model.default_params.copy()
+    u = np.array([0.7])
+    dt, sub = float(task.config.dt), int(task.config.substeps)
+    truth = p.copy()
+    truth[index] *= [1.2, 0.9, 1.1]
+    y = task.recenter(model.step(x[None], dt, u=u[None], params=truth[None], substeps=sub)[0], p[None])[0][0]
+    theta, cov, noise = rng.normal(0.0, 0.05, 3), np.diag([0.09, 0.04, 0.06]), 1e-3
+
+    def predict(th: np.ndarray) -> np.ndarray:
+        q = p.copy()
+        q[index] *= np.exp(th)
+        nxt = model.step(x[None], dt, u=u[None], params=q[None], substeps=sub)[0]
+        return task.recenter(nxt, p[None])[0][0]
+
+    h = np.stack([(predict(theta + e) - predict(theta - e)) / 2e-6 for e in 1e-6 * np.eye(3)], axis=1)
+    s = h @ cov @ h.T + noise**2 * np.eye(6)
+    expected = theta + cov @ h.T @ np.linalg.solve(s, y - predict(theta))
+    with jax.enable_x64(True):
+        rows = (jax.numpy.asarray(a) for a in (theta, cov, x, p, u, y))
+        got, new_cov = correct_estimate(task.controller_functions(), task.frame_functions()[0], sub, tuple(index),
+                                        task.angles, *rows, task.args, dt, noise, 0.0)
+    np.testing.assert_allclose(np.asarray(got), expected, rtol=1e-5, atol=1e-8)
+    np.testing.assert_allclose(np.asarray(new_cov), cov - cov @ h.T @ np.linalg.solve(s, h @ cov), rtol=1e-5,
+                               atol=1e-10)
+
+
 def test_adaptive_law_lowers_the_usv_phi_under_mismatch() -> None:
     law = evaluate(GeometricController, USV, "mismatch", n_episodes=4, seed=TEST_SEED)
     adaptive = evaluate(AdaptiveController, USV, "mismatch", n_episodes=4, seed=TEST_SEED)

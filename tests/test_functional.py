@@ -101,7 +101,8 @@ def test_sampled_law_is_the_exact_discretisation(name: str) -> None:
     s = jnp.asarray(np.random.default_rng(5).uniform(-1.0, 1.0, 2 * system.N))
     dt, gain = 0.1, 20.0
     target = np.exp(-gain * dt) * np.asarray(system.phi(s, p))
-    u = F.sampled_law(system, s, p, dt, gain, substeps=4)
+    u, converged = F.sampled_law(system, s, p, dt, gain, substeps=4, iters=6)
+    assert bool(converged)
     np.testing.assert_allclose(system.phi(F.rk4_step(system, s, p, u, dt, 4), p), target, rtol=1e-9, atol=1e-12)
     held = F.law(system, s, p, gain)
     assert np.max(np.abs(system.phi(F.rk4_step(system, s, p, held, dt, 4), p) - target)) > 1e-3

@@ -25,6 +25,7 @@ from vnhc_gym.mechanics import (
     Trajectory,
     VelocityConstraint,
     derive_law,
+    sampled_control,
     simulate,
 )
 from vnhc_gym.systems import make_flocking
@@ -327,6 +328,41 @@ def test_sampled_feedback_is_zero_order_hold() -> None:
     np.testing.assert_allclose(sampled, held, rtol=1e-14, atol=1e-14)
     np.testing.assert_allclose(u_applied, u_star, rtol=1e-14)
     assert not flags.any()
+
+
+def test_sampled_control_meets_the_discrete_decay_and_measures_the_increment() -> None:
+    """The sampled-data law on the boat: the held force makes phi after one period exp(-K dt) times
+    phi now (to rounding), and with a measured phi_now the model gives the increment,
+    phi(F(x, u)) - phi(x) = (exp(-K dt) - 1) phi_now.  With no Newton step it is u* itself."""
+    from vnhc_gym.systems import make_usv
+
+    model = make_usv()
+    rng = np.random.default_rng(3)
+    s = rng.uniform(-0.5, 0.5, (4, 6))
+    dt, gain, sub = 0.1, 20.0, 4
+    u, converged = sampled_control(model, s, None, dt, gain, sub, iters=6)
+    assert converged.all()
+    end, _, _ = model.step(s, dt, u=u, substeps=sub)
+    np.testing.assert_allclose(model.phi(end), np.exp(-gain * dt) * model.phi(s), rtol=0, atol=1e-13)
+    measured = 0.5 * model.phi(s)
+    u2, converged = sampled_control(model, s, None, dt, gain, sub, iters=6, phi_now=measured)
+    end, _, _ = model.step(s, dt, u=u2, substeps=sub)
+    np.testing.assert_allclose(model.phi(end) - model.phi(s), np.expm1(-gain * dt) * measured, rtol=0, atol=1e-13)
+    assert converged.all()
+    u0, converged = sampled_control(model, s, None, dt, gain, sub, iters=0)
+    np.testing.assert_array_equal(u0, model.control(s, gain))
+    assert not converged.any()
+
+
+def test_sampled_control_solves_the_flock_in_one_newton_step() -> None:
+    """Held, the flock's motion is a polynomial of degree two in time, which RK4 integrates exactly, so
+    the discrete equation is affine in the control: one Newton step from u* solves it."""
+    model = make_flocking(4)
+    rng = np.random.default_rng(8)
+    s = rng.uniform(-3, 3, (5, 16))
+    u, _ = sampled_control(model, s, None, 0.05, 10.0, 3, iters=1)
+    end, _, _ = model.step(s, 0.05, u=u, substeps=3)
+    np.testing.assert_allclose(model.phi(end), np.exp(-10.0 * 0.05) * model.phi(s), rtol=1e-12, atol=1e-12)
 
 
 def test_u_bounds_saturate_the_control() -> None:

@@ -117,6 +117,25 @@ def test_a_cells_tuned_law_becomes_the_compiled_residuals_base() -> None:
     assert "env_wrapper" not in hp  # taken out: the rest is PPO's
 
 
+def test_a_residual_trains_on_the_kalman_base_of_a_task_that_measures_every_entry(tmp_path) -> None:
+    """The compiled trainer on the flock's Kalman base (no unmeasured entries; it trains without x64
+    and validates with it): the run finishes, and at step 0 its validation score is the numpy
+    filter's on the same episodes."""
+    from vnhc_gym.baselines import KalmanController
+    from vnhc_gym.evaluation import VALIDATION_SEED, evaluate
+    from vnhc_gym.training import TrainConfig
+    from vnhc_gym.training.run_jax import train_seeds
+
+    settings = {"gain": 80.0, "q": 0.01, "variant": "sampled"}
+    (meta,) = train_seeds(
+        TrainConfig(algo="residual_ppo", env="flocking", scenario="noisy", n_timesteps=2048, eval_points=1,
+                    eval_episodes=2, test_episodes=2, backend="jax", out=str(tmp_path), residual_base="kalman",
+                    residual_base_settings=settings), [0])
+    want = evaluate(lambda e: KalmanController(e, **settings), "vnhc_gym/FlockingAlign-v1", "noisy", n_episodes=2,
+                    seed=VALIDATION_SEED).metrics["score"]
+    assert meta["curve"][0]["score"] == pytest.approx(float(np.mean(want)), rel=1e-6)
+
+
 def test_a_residual_on_the_kalman_base_starts_at_the_filters_score() -> None:
     """The compiled residual environment on `kalman_base` with a zero residual is the numpy
     `KalmanController` on the same validation episodes (the boat under noise: a filtered current,

@@ -5,24 +5,71 @@ nominal ones the plain law is told, so ``u*`` no longer cancels the drift and ``
 an offset.  [`AdaptiveController`][vnhc_gym.baselines.AdaptiveController] estimates the task's
 ``uncertain`` parameters from what it sees: each step it predicts the observed state with the
 controller's model and the force it applied, and corrects the estimate by an extended Kalman filter
-on the prediction error (the Jacobian by finite differences through the model's RK4 step map).  The
-law then uses the estimate.  Parameters are estimated as ``log`` of their ratio to the nominal
+on the prediction error (`correct_estimate`: pure JAX of one episode, the Jacobian of the model's RK4
+step map by forward-mode differentiation, batched over the rows by ``jax.vmap``).  The law then uses
+the estimate.  Parameters are estimated as ``log`` of their ratio to the nominal
 value, so they stay positive.
 """
 
 from __future__ import annotations
 
+from functools import cache
 from typing import Any
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, StatefulLaw
 from vnhc_gym.envs.config import check_number
+from vnhc_gym.mechanics import functional as F
 
-__all__ = ["AdaptiveController"]
+__all__ = ["AdaptiveController", "correct_estimate"]
 
 Array = NDArray[np.float64]
+
+
+def correct_estimate(system: Any, move: Any, substeps: int, index: tuple[int, ...], angles: tuple[int, ...],
+                     theta: Any, cov: Any, x: Any, p: Any, u: Any, y: Any, args: Any, dt: Any, noise: Any,
+                     drift: Any) -> tuple[Any, Any]:
+    """One episode's extended-Kalman update of the log-ratios ``theta`` of the parameters ``index``
+    (pure JAX; batched by ``jax.vmap``).
+
+    The prediction of the observed state ``y`` is one control period of RK4 from the last state ``x``
+    with the force ``u`` applied since and the parameters ``p`` scaled by ``exp(theta)``, carried into
+    the frame of ``y`` by the task's ``move`` (its pure ``recenter``, or None); its Jacobian in
+    ``theta`` is exact (forward mode).  ``theta`` is a random walk of ``drift^2`` per step; the
+    prediction error, with the ``angles`` wrapped, has covariance ``noise^2 I``.  Returns the new
+    ``(theta, cov)``, ``theta`` clipped to ``[-1, 1]``; a non-finite result keeps the old ones.
+    """
+    idx = jnp.asarray(index, dtype=jnp.int32)
+
+    def predict(th: Any) -> Any:
+        # Not unrolled: differentiated, written-out substeps compile several times slower (F.sampled_law).
+        nxt = F.rk4_step(system, x, p.at[idx].set(p[idx] * jnp.exp(th)), u, dt, substeps, unroll=False)
+        return nxt if move is None else move(nxt, p, args)[0]
+
+    k = theta.shape[0]
+    prior = cov + drift**2 * jnp.eye(k)
+    err = y - predict(theta)
+    for j in angles:
+        err = err.at[j].set((err[j] + jnp.pi) % (2 * jnp.pi) - jnp.pi)
+    jac = jax.jacfwd(predict)(theta)
+    s = jac @ prior @ jac.T + noise**2 * jnp.eye(y.shape[0])
+    gain = jnp.linalg.solve(s, jac @ prior).T  # prior H^T S^-1 (S and the prior symmetric)
+    new_theta, new_cov = theta + gain @ err, prior - gain @ jac @ prior
+    good = jnp.all(jnp.isfinite(new_theta)) & jnp.all(jnp.isfinite(new_cov))
+    return jnp.where(good, jnp.clip(new_theta, -1.0, 1.0), theta), jnp.where(good, new_cov, cov)
+
+
+@cache
+def _batched(system: Any, move: Any, substeps: int, index: tuple[int, ...], angles: tuple[int, ...]) -> Any:
+    """`correct_estimate` compiled for a batch of rows, once per task's functions and settings."""
+    def one(*a: Any) -> Any:
+        return correct_estimate(system, move, substeps, index, angles, *a)
+
+    return jax.jit(jax.vmap(one, in_axes=(0,) * 6 + (None,) * 4))
 
 
 class AdaptiveController(StatefulLaw):
@@ -68,10 +115,6 @@ class AdaptiveController(StatefulLaw):
         p[:, self.index] = params[:, self.index] * np.exp(theta)
         return p
 
-    def _predict(self, x: Array, params: Array, theta: Array, u: Array) -> Array:
-        nxt, _, _ = self.model.step(x, self.dt, u=u, params=self._with(params, theta), substeps=self.substeps)
-        return self.task.recenter(nxt, params)[0]
-
     def estimates(self, obs: Array) -> Array:
         """Update the estimates with a batch of observations; the parameters the law should use."""
         y, py = self.task.controller_inputs(obs)
@@ -82,25 +125,14 @@ class AdaptiveController(StatefulLaw):
             self._cov = np.tile(np.eye(k) * self.prior**2, (b, 1, 1))
             self._fresh = np.zeros(b, dtype=bool)
         elif k:
-            # Extended Kalman filter on theta: prediction error of the observed state.
-            theta, cov = self._theta, self._cov + np.eye(k) * self.drift**2
-            pred = self._predict(self._x, self._p, theta, self._u)
-            err = y - pred
-            for j in self.task.angles:
-                err[:, j] = (err[:, j] + np.pi) % (2 * np.pi) - np.pi
-            h = 1e-4
-            jac = np.empty((b, y.shape[1], k))
-            for i in range(k):
-                step = np.zeros(k)
-                step[i] = h
-                jac[:, :, i] = (self._predict(self._x, self._p, theta + step, self._u) - pred) / h
-            s = jac @ cov @ jac.transpose(0, 2, 1) + np.eye(y.shape[1]) * self.noise**2
-            gain = cov @ jac.transpose(0, 2, 1) @ np.linalg.inv(s)
-            new_theta = theta + np.einsum("bij,bj->bi", gain, err)
-            new_cov = cov - gain @ jac @ cov
-            good = np.isfinite(new_theta).all(axis=1) & ~self._fresh
-            self._theta[good] = np.clip(new_theta[good], -1.0, 1.0)
-            self._cov[good] = new_cov[good]
+            run = _batched(self.task.controller_functions(), self.task.frame_functions()[0], int(self.substeps),
+                           tuple(int(i) for i in self.index), tuple(self.task.angles))
+            with jax.enable_x64(True):  # scoped: the filter needs float64, the user's settings stay
+                theta, cov = run(self._theta, self._cov, self._x, self._p, self._u, y, self.task.args,
+                                 float(self.dt), self.noise, self.drift)
+            good = ~self._fresh
+            self._theta[good] = np.asarray(theta)[good]
+            self._cov[good] = np.asarray(cov)[good]
             self._theta[self._fresh] = 0.0
             self._cov[self._fresh] = np.eye(k) * self.prior**2
             self._fresh[:] = False

@@ -29,6 +29,7 @@ from functools import partial
 from typing import Any, ClassVar, NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from numpy.typing import NDArray
 
@@ -389,10 +390,14 @@ class Task:
         observation = sys.modules[type(self).__module__].observation
         if "system" in inspect.signature(observation).parameters:
             observation = partial(observation, system=system)
-        unmeasured = np.asarray(self.unmeasured, dtype=np.intp)
+        # A mask, not an index array: an empty numpy index is int64, which a program traced without
+        # x64 (the compiled trainers) refuses to scatter with.
+        unmeasured = np.zeros(int(self.obs_dim), dtype=bool)
+        unmeasured[list(self.unmeasured)] = True
 
         def one(s: Any, p: Any, chart: Any, args: Any) -> Any:
-            return observation(s, system.phi(s, p), chart, args).at[unmeasured].set(np.nan)
+            out = observation(s, system.phi(s, p), chart, args)
+            return jnp.where(unmeasured, jnp.asarray(np.nan, out.dtype), out)
 
         _OBSERVATION_MODELS[key] = one
         return one

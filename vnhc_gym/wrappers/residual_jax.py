@@ -65,7 +65,7 @@ def _law_action(env: FunctionalEnv, gain: Any, variant: str, iters: int) -> Call
     def action(s: Array, p: Array, params: EnvParams) -> Array:
         u, singular = core.checked_law(system, s, p, gain, tol)
         if variant == "sampled":
-            us = core.sampled_law(system, s, p, params.dt, gain, env.substeps, iters)
+            us, _ = core.sampled_law(system, s, p, params.dt, gain, env.substeps, iters)
             u = jnp.where(singular | ~jnp.all(jnp.isfinite(us)), u, us)
         a = u / params.force_bound
         return jnp.clip(jnp.where(jnp.isfinite(a), a, 0.0), -1.0, 1.0)
