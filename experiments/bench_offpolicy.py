@@ -8,7 +8,10 @@ results/bench_offpolicy.md and .json.
     python experiments/bench_offpolicy.py --quick    # a smoke run
 
 A SAC run's time is almost all gradient steps.  Each implementation runs in its own process (JAX and
-PyTorch each with one thread), on the boat.  The figures are the steady state, after the start-up
+PyTorch each with one thread), on the boat.  The last row is the compiled SAC's gradient steps
+alone, on a buffer of random transitions with the environment left out: at the file's ratio of
+environment steps to gradient steps, no implementation of this update on one thread of this machine
+trains faster than that row's env-steps/s.  The figures are the steady state, after the start-up
 and the compilation (reported apart for the compiled trainer): stable-baselines3 and SBX after a
 warm-up, the compiled trainer over its second half (the first half holds the compilation and the
 random-action phase).
@@ -29,6 +32,40 @@ lib, task, steps = sys.argv[1], sys.argv[2], int(sys.argv[3])
 import vnhc_gym
 from vnhc_gym.tasks import env_id
 from vnhc_gym.training.hyperparams import load_hyperparams
+if lib == "bound":
+    # The compiled SAC's gradient steps alone (the environment free, the buffer full of random
+    # transitions): what bounds its env-steps/s at the file's gradient steps per transition.
+    import time
+    import jax
+    import jax.numpy as jnp
+    from vnhc_gym.envs.functional import make_jax
+    from vnhc_gym.training import sac_jax as S
+    hp = load_hyperparams("sac", env_id(task))
+    s = S.settings_from(hp, "sac hyperparameters")
+    env, params = make_jax(env_id(task), "nominal")
+    ts = jax.tree.map(lambda x: x[0], S.init(jnp.stack([jax.random.key(0)]), env, params, s))
+    n, k = 10_000, jax.random.split(jax.random.key(1), 6)
+    buf = S.Buffer(obs=jax.random.normal(k[0], (n, env.obs_dim)),
+                   action=jax.random.uniform(k[1], (n, env.num_actions), minval=-1.0, maxval=1.0),
+                   reward=jax.random.uniform(k[2], (n,)), next_obs=jax.random.normal(k[3], (n, env.obs_dim)),
+                   terminated=jnp.zeros(n, bool))
+
+    def one(ln, key):
+        k_idx, k_step = jax.random.split(key)
+        idx = jax.random.randint(k_idx, (s.batch_size,), 0, n)
+        return S._gradient_step(s, -float(env.num_actions), ln, jax.tree.map(lambda b: b[idx], buf), k_step), None
+
+    run = jax.jit(lambda ln, key: jax.lax.scan(one, ln, jax.random.split(key, steps))[0])
+    ln = S.Learner(ts.params, ts.target, ts.opt)
+    jax.block_until_ready(run(ln, k[4]))  # compilation
+    t0 = time.perf_counter()
+    jax.block_until_ready(run(ln, k[5]))
+    wall = time.perf_counter() - t0
+    per_step = hp["n_envs"] / hp["gradient_steps"]  # env steps per gradient step in the file
+    print(json.dumps({"implementation": "compiled, gradient steps alone (bound)", "task": task,
+                      "env_steps": steps * per_step, "wall": wall, "env_steps_per_s": steps * per_step / wall,
+                      "gradient_steps_per_s": steps / wall}))
+    sys.exit(0)
 if lib.startswith("compiled"):
     import tempfile
     from vnhc_gym.training import TrainConfig
@@ -79,7 +116,8 @@ def main() -> None:
     for lib, steps in (("stable-baselines3", 1024 if args.quick else 32_768),
                        ("SBX", 2048 if args.quick else 131_072),
                        ("compiled 1", 32 * 64 if args.quick else 131_072),
-                       ("compiled 5", 0 if args.quick else 131_072)):
+                       ("compiled 5", 0 if args.quick else 131_072),
+                       ("bound", 64 if args.quick else 4096)):
         if steps == 0:  # the smoke run leaves out the five seeds
             continue
         proc = subprocess.run([sys.executable, "-c", _ONE, lib, "usv", str(steps)], capture_output=True, text=True,
