@@ -240,6 +240,27 @@ def test_a_compiled_cell_trains_its_seeds_in_one_program_and_is_reported_beside_
     assert "ppo on jax against SB3, 1 cell:" in (out / "report" / "backends.md").read_text()
 
 
+def test_the_backends_table_names_the_base_each_residual_corrected(tmp_path: Path) -> None:
+    from vnhc_gym.sweep.verdicts import _write_backends
+
+    def row(algo: str, score: float, low: float, high: float, base: str | None) -> dict[str, Any]:
+        r = {"env": "usv", "scenario": "disturbance", "algo": algo, "score": score, "low": low, "high": high,
+             "runs": 5}
+        return r if base is None else {**r, "base": base}
+
+    rows = [row("residual_ppo", 0.95, 0.94, 0.96, "safe_law"), row("residual_ppo-jax", 0.75, 0.70, 0.80, "tuned_law"),
+            row("ppo", 0.80, 0.78, 0.82, None), row("ppo-jax", 0.81, 0.79, 0.83, None)]
+    entries = _write_backends(rows, tmp_path)
+    by = {e["algo"]: e for e in entries}
+    assert (by["residual_ppo"]["sb3"]["base"], by["residual_ppo"]["other"]["base"]) == ("safe_law", "tuned_law")
+    assert by["residual_ppo"]["placement"] == "below" and not by["residual_ppo"]["overlap"]
+    assert "base" not in by["ppo"]["sb3"] and by["ppo"]["placement"] == "within"
+    md = (tmp_path / "backends.md").read_text()
+    line = next(x for x in md.splitlines() if "| residual_ppo |" in x)
+    assert "(5) on safe_law |" in line and "(5) on tuned_law |" in line
+    assert "the bases differ in 1" in md
+
+
 @pytest.mark.slow
 def test_report_warns_about_mixed_code_versions(swept: Any, tmp_path: Path) -> None:
     out = _copy(swept[0], tmp_path)

@@ -93,8 +93,8 @@ def _write_backends(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, An
         if sb3 is None:
             continue
         entries.append({"env": r["env"], "scenario": r["scenario"], "algo": algo_of(r["algo"]), "backend": backend,
-                        "sb3": {k: sb3[k] for k in ("score", "low", "high", "runs")},
-                        "other": {k: r[k] for k in ("score", "low", "high", "runs")},
+                        "sb3": {k: sb3[k] for k in ("score", "low", "high", "runs", "base") if k in sb3},
+                        "other": {k: r[k] for k in ("score", "low", "high", "runs", "base") if k in r},
                         "placement": placement(r["score"], sb3["low"], sb3["high"]),
                         "overlap": bool(r["low"] <= sb3["high"] and sb3["low"] <= r["high"])})
     if not entries:
@@ -103,16 +103,20 @@ def _write_backends(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, An
     lines = ["| task | scenario | learner | SB3: score [95% CI] (runs) | other backend: score [95% CI] (runs) "
              "| its score against SB3's interval | intervals overlap |", "|---|---|---|---|---|---|---|"]
     for e in entries:
-        lines.append(f"| {e['env']} | {e['scenario']} | {e['algo']} | {_score(e['sb3'])} ({e['sb3']['runs']}) | "
-                     f"{e['backend']}: {_score(e['other'])} ({e['other']['runs']}) | {e['placement']} | "
+        # A residual learner's score is its base's plus what it learned: the bases are named, since
+        # the two backends may correct different ones.
+        on = {k: f" on {e[k]['base']}" if e[k].get("base") else "" for k in ("sb3", "other")}
+        lines.append(f"| {e['env']} | {e['scenario']} | {e['algo']} | {_score(e['sb3'])} ({e['sb3']['runs']}){on['sb3']} | "
+                     f"{e['backend']}: {_score(e['other'])} ({e['other']['runs']}){on['other']} | {e['placement']} | "
                      f"{'yes' if e['overlap'] else 'no'} |")
     for (algo, backend) in sorted({(e["algo"], e["backend"]) for e in entries}):
         these = [e for e in entries if (e["algo"], e["backend"]) == (algo, backend)]
         counts = ", ".join(f"{sum(e['placement'] == p for e in these)} {p}" for p in ("below", "within", "above"))
         apart = sum(not e["overlap"] for e in these)
+        differ = sum(e["sb3"].get("base") != e["other"].get("base") for e in these)
         lines.append(f"\n{algo} on {backend} against SB3, {len(these)} cell{'' if len(these) == 1 else 's'}: "
                      f"{counts} SB3's interval; "
-                     f"the intervals are apart in {apart}.")
+                     f"the intervals are apart in {apart}" + (f"; the bases differ in {differ}." if differ else "."))
     (dest / "backends.md").write_text("\n".join(lines) + "\n")
     return entries
 
