@@ -20,12 +20,12 @@ from vnhc_gym.envs.rendering import (  # noqa: E402 - after the skip
     _PHI_SATURATED,
     SCREEN_SIZE,
     Body,
-    FlockingRenderer,
     Link,
     PlanarRenderer,
     Scene,
-    USVRenderer,
     axes_3d,
+    flock_scene,
+    hull_scene,
 )
 
 NAN, INF, HUGE = math.nan, math.inf, 1e300
@@ -296,42 +296,48 @@ def test_bad_render_mode_raises() -> None:
 # --------------------------------------------------------------------------- the shipped tasks' renderers
 
 
-def test_flocking_renderer_from_state_and_phi() -> None:
-    r = FlockingRenderer(4, "rgb_array")
+def test_the_flock_is_drawn_from_its_state_and_phi() -> None:
+    r = PlanarRenderer("rgb_array")
+
+    def draw(state, phi):
+        return r.draw(flock_scene(4, state, phi, 10.0))
+
     state = np.array([0.0, 5.0, 10.0, 3.0, 0.0, 2.0, -3.0, 1.0, 1.0, 1.0, 0.5, 1.0, 0.0, 0.5, 1.0, 0.2])
     phi = np.array([-5.6, 9.9, -12.6])
-    f = r.draw(state, phi)
+    f = draw(state, phi)
     assert _is_frame(f)
     moved = state.copy()
     moved[0] += 4.0
-    assert not np.array_equal(f, r.draw(moved, phi))
-    scene = r.scene(state, phi)
+    assert not np.array_equal(f, draw(moved, phi))
+    scene = flock_scene(4, state, phi, 10.0)
     assert len(scene.bodies) == 4 and len(scene.guides) == 3 and list(scene.phi) == list(phi)
     for bad in BAD:
-        assert _is_frame(r.draw(np.full(16, bad), np.full(3, bad)))
+        assert _is_frame(draw(np.full(16, bad), np.full(3, bad)))
         poked = state.copy()
         poked[[2, 9, 14]] = bad
-        assert _is_frame(r.draw(poked, phi))
+        assert _is_frame(draw(poked, phi))
     r.close()
-    with pytest.raises(ValueError, match="n_agents"):
-        FlockingRenderer(1, "rgb_array")
 
 
-def test_usv_renderer_from_state_phi_and_current() -> None:
-    r = USVRenderer("rgb_array")
+def test_the_boat_is_drawn_from_its_state_phi_and_current() -> None:
+    r = PlanarRenderer("rgb_array")
+
+    def draw(state, phi, current):
+        return r.draw(hull_scene(state, phi, current))
+
     state = np.array([3.0, 1.0, 0.4, 1.5, 0.3, 0.0])
-    f = r.draw(state, np.array([-0.48]), _current)
+    f = draw(state, np.array([-0.48]), _current)
     assert _is_frame(f)
     assert _mask(f, _CURRENT).any()  # the current is the scene's field
     # The sled: no current, two phi components, both drawn.
     def no_current(x, y):
         return np.zeros((*np.shape(x), 2))
 
-    still = r.draw(state, np.array([-0.1, -0.85]), no_current)
+    still = draw(state, np.array([-0.1, -0.85]), no_current)
     assert _is_frame(still) and not _mask(still, _CURRENT).any()
-    assert _mask(still, _PHI_BAR).sum() > _mask(r.draw(state, np.array([-0.1]), no_current), _PHI_BAR).sum()
+    assert _mask(still, _PHI_BAR).sum() > _mask(draw(state, np.array([-0.1]), no_current), _PHI_BAR).sum()
     for bad in BAD:
-        assert _is_frame(r.draw(np.full(6, bad), np.array([bad]), _current))
-        assert _is_frame(r.draw(np.array([0.0, 0.0, bad, bad, 1.0, 0.0]), np.array([0.1]), _current))
-        assert _is_frame(r.draw(state, np.array([0.1]), lambda x, y, v=bad: np.full((*np.shape(x), 2), v)))
+        assert _is_frame(draw(np.full(6, bad), np.array([bad]), _current))
+        assert _is_frame(draw(np.array([0.0, 0.0, bad, bad, 1.0, 0.0]), np.array([0.1]), _current))
+        assert _is_frame(draw(state, np.array([0.1]), lambda x, y, v=bad: np.full((*np.shape(x), 2), v)))
     r.close()

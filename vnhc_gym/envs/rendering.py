@@ -2,8 +2,8 @@
 
 A task describes each frame declaratively as a [`Scene`][vnhc_gym.envs.rendering.Scene] (bodies, links, guide lines, the
 components of ``phi``, an optional background vector field) and
-[`PlanarRenderer`][vnhc_gym.envs.rendering.PlanarRenderer] draws it.  `FlockingRenderer` and
-`USVRenderer` are thin wrappers that turn the shipped tasks' state arrays into a
+[`PlanarRenderer`][vnhc_gym.envs.rendering.PlanarRenderer] draws it.  `flock_scene` and
+`hull_scene` turn the flock's and the boat's (or sled's) state arrays into a
 [`Scene`][vnhc_gym.envs.rendering.Scene].  `axes_3d` projects a rotation matrix's body axes onto the
 screen so that a spatial task can be drawn with the same renderer.
 
@@ -37,8 +37,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["SCREEN_SIZE", "Body", "FlockingRenderer", "Link", "PlanarRenderer", "Scene", "USVRenderer", "axes_3d",
-           "flock_scene", "hull_scene"]
+__all__ = ["SCREEN_SIZE", "Body", "Link", "PlanarRenderer", "Scene", "axes_3d", "flock_scene", "hull_scene"]
 
 SCREEN_SIZE = 500  #: frames are SCREEN_SIZE x SCREEN_SIZE pixels
 _PIX_LIMIT = 10.0 * SCREEN_SIZE  # pixel coordinates are clipped to +-this (pygame needs C ints)
@@ -758,69 +757,3 @@ def hull_scene(state: NDArray[np.float64], phi: NDArray[np.float64], current: Ca
     return Scene(bodies=bodies, links=links, phi=[float(v) for v in np.asarray(phi, np.float64).ravel()],
                  phi_bar_scale=phi_bar_scale, phi_units=phi_units, field=current,
                  center=(x, y) if centred else (0.0, 0.0), extent=view_width, text=text)
-
-
-class FlockingRenderer:
-    """Particles in the xz-plane; the camera follows the group.
-
-    The view is centred on the centroid of the (finite) particle positions and scaled so that
-    every particle fits with a margin (at least 30 m across).  Followers are blue, the leader
-    red; each particle carries an arrow along its velocity, of length proportional to its speed
-    divided by the largest speed (the longest is 60 px); a grey line through each follower shows
-    the leader's direction (the constraint asks the follower's arrow to lie on it).  Every
-    component of ``phi`` is shown as a bar (full length at `phi_bar_scale`).
-    """
-
-    phi_bar_scale = 10.0  #: |phi| of a full-length bar (m^2/s^2)
-
-    def __init__(self, n_agents: int, render_mode: str, fps: float = 20) -> None:
-        if int(n_agents) != n_agents or n_agents < 2:
-            raise ValueError(f"n_agents must be an integer >= 2, got {n_agents!r}")
-        self.n_agents = int(n_agents)
-        self._planar = PlanarRenderer(render_mode, fps, "FlockingAlign")
-        self.render_mode = render_mode
-
-    def scene(self, state: NDArray[np.float64], phi: NDArray[np.float64]) -> Scene:
-        """The [`Scene`][vnhc_gym.envs.rendering.Scene] of one frame (`flock_scene`)."""
-        return flock_scene(self.n_agents, state, phi, self.phi_bar_scale)
-
-    def draw(self, state: NDArray[np.float64], phi: NDArray[np.float64]) -> NDArray[np.uint8] | None:
-        """Draw the flock; returns the frame (``rgb_array``) or None (``human``)."""
-        return self._planar.draw(self.scene(state, phi))
-
-    def close(self) -> None:
-        self._planar.close()
-
-
-class USVRenderer:
-    """The boat (or the sled) from above, in a 20 m wide view centred on it.
-
-    A quiver grid of the current (2 m spacing, fixed to the world, so it slides past as the
-    boat moves; arrows scaled by the largest current in view, at least 1 m/s), the hull as an
-    oriented triangle pointing along ``theta``, the boat's velocity (red) and its velocity
-    relative to the water (green; the constraint asks it to point along the hull), both at
-    2 m per m/s (capped at 9 m).  Every component of ``phi`` is shown as a bar (full length at
-    `phi_bar_scale`).
-    """
-
-    view_width = 20.0  #: metres across the frame
-    arrow_scale = 2.0  #: metres of arrow per m/s of velocity
-    phi_bar_scale = 1.0  #: |phi| of a full-length bar (m/s)
-
-    def __init__(self, render_mode: str, fps: float = 20) -> None:
-        self._planar = PlanarRenderer(render_mode, fps, "vnhc_gym")
-        self.render_mode = render_mode
-
-    def scene(self, state: NDArray[np.float64], phi: NDArray[np.float64],
-              current: Callable[[Any, Any], Any]) -> Scene:
-        """The [`Scene`][vnhc_gym.envs.rendering.Scene] of one frame (`hull_scene`)."""
-        return hull_scene(state, phi, current, phi_bar_scale=self.phi_bar_scale, view_width=self.view_width,
-                          arrow_scale=self.arrow_scale)
-
-    def draw(self, state: NDArray[np.float64], phi: NDArray[np.float64],
-             current: Callable[[Any, Any], Any]) -> NDArray[np.uint8] | None:
-        """Draw the boat; ``current(x, y) -> (..., 2)`` is the water velocity (m/s)."""
-        return self._planar.draw(self.scene(state, phi, current))
-
-    def close(self) -> None:
-        self._planar.close()

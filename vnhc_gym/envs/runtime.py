@@ -31,7 +31,6 @@ if TYPE_CHECKING:
 
 __all__ = ["Batch", "Buffers", "seed_keys"]
 
-STATUS_OK = 0
 STATUS_NONFINITE = 1  #: the state (or phi, or the observation) was not finite: the row kept its last finite state
 
 #: The fields of an episode's memory row, in order, and their sizes in terms of the task's dimensions

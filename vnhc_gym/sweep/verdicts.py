@@ -106,7 +106,8 @@ def _write_backends(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, An
         # A residual learner's score is its base's plus what it learned: the bases are named, since
         # the two backends may correct different ones.
         on = {k: f" on {e[k]['base']}" if e[k].get("base") else "" for k in ("sb3", "other")}
-        lines.append(f"| {e['env']} | {e['scenario']} | {e['algo']} | {_score(e['sb3'])} ({e['sb3']['runs']}){on['sb3']} | "
+        lines.append(f"| {e['env']} | {e['scenario']} | {e['algo']} | "
+                     f"{_score(e['sb3'])} ({e['sb3']['runs']}){on['sb3']} | "
                      f"{e['backend']}: {_score(e['other'])} ({e['other']['runs']}){on['other']} | {e['placement']} | "
                      f"{'yes' if e['overlap'] else 'no'} |")
     for (algo, backend) in sorted({(e["algo"], e["backend"]) for e in entries}):

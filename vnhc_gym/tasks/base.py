@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import inspect
 import sys
-from dataclasses import asdict
 from functools import partial
 from typing import Any, ClassVar, NamedTuple
 
@@ -85,8 +84,6 @@ class Task:
         Width of the bounded reward ``exp(-|phi~| / sigma)`` when ``reward_sigma`` is not given.
     phi_units : str
         Units of ``phi``, for tables and docs.
-    phi_sf_meaning : str
-        What the scale-free ``phi~`` is, for tables and docs.
     phi_sf_scale : float
         ``phi~ = phi / phi_sf_scale`` (in ``phi``'s units) unless the module defines ``scale_free``.
     angles : tuple of int
@@ -130,7 +127,6 @@ class Task:
     default_impulse_scale: ClassVar[float]
     reward_sigma: ClassVar[float] = 0.1
     phi_units: ClassVar[str] = ""
-    phi_sf_meaning: ClassVar[str] = ""
     phi_sf_scale: float = 1.0  # a class attribute, or set by the constructor from the options
     angles: ClassVar[tuple[int, ...]] = ()
     uncertain: ClassVar[tuple[str, ...]] = ()
@@ -456,9 +452,3 @@ class Task:
         links, every ``phi`` component), from its state, ``phi`` and true parameters.  A task that
         does not define it has no render modes."""
         raise NotImplementedError
-
-    def describe(self) -> dict[str, Any]:
-        """A JSON-friendly summary of the configured task (for result files)."""
-        return {"task": self.name, "config": {k: getattr(self.config, k) for k in self.config.__dataclass_fields__},
-                "options": asdict(self.options), "force_bound": self.force_bound.tolist(), "units": list(self.units),
-                "obs_dim": self.obs_dim, "act_dim": self.act_dim}

@@ -86,7 +86,6 @@ class CartPoleTask(Task):
     #: law about 0.99 over an episode, a falling pole about 0.08.
     reward_sigma = 0.05
     phi_units = "rad/s"
-    phi_sf_meaning = "the pole's turn-rate error, over its free-fall rate sqrt(3 g / (4 l))"
     angles = (1,)
     uncertain = ("m_p", "l", "b_c")
 

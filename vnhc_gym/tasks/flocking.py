@@ -170,7 +170,6 @@ class FlockingTask(Task):
     #: Width of the bounded reward (m/s; chosen by experiments/reward_shape.py, see the docs).
     reward_sigma = 0.3
     phi_units = "m^2/s^2"
-    phi_sf_meaning = "phi^b / (|v_N| 1 m/s): the follower's velocity across the leader's direction of motion"
     phi_sf_scale = PHI_SF_SCALE
 
     @property

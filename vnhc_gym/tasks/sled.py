@@ -98,7 +98,6 @@ class SledCruiseTask(Task):
     #: Width of the bounded reward (m/s).
     reward_sigma = 0.1
     phi_units = "m/s"
-    phi_sf_meaning = "the blade's sideways speed and the speed error, over 1 m/s"
     phi_sf_scale = 1.0
     angles = (2,)
     uncertain = ("m", "I", "a")

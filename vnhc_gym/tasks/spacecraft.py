@@ -114,7 +114,6 @@ class SpacecraftTask(Task):
     #: Width of the bounded reward (rad/s): the law averages 0.98 over an episode, a start 0.006.
     reward_sigma = 0.1
     phi_units = "rad/s"
-    phi_sf_meaning = "the body-rate error from pointing and spinning, over 1 rad/s"
     angles = (0, 1, 2)
     uncertain = ("J1", "J2", "J3")
 

@@ -212,7 +212,6 @@ class USVTask(Task):
     #: Width of the bounded reward (m/s; chosen by experiments/reward_shape.py, see the docs).
     reward_sigma = 0.1
     phi_units = "m/s"
-    phi_sf_meaning = "phi / (1 m/s): the sideways speed through the water"
     phi_sf_scale = 1.0
     angles = (2,)  # theta
     uncertain = ("m", "I", "current_scale")
