@@ -238,6 +238,12 @@ def test_a_compiled_cell_trains_its_seeds_in_one_program_and_is_reported_beside_
     assert entry["placement"] == ("below" if score < lo else "above" if score > hi else "within")
     assert entry["overlap"] == (jax_row["low"] <= hi and lo <= jax_row["high"])
     assert "ppo on jax against SB3, 1 cell:" in (out / "report" / "backends.md").read_text()
+    # cost.md counts the program that trained both seeds once, and every SB3 run of PPO.
+    cost = {line.split(" | ")[0][2:]: line.split(" | ")[1:3] for line in
+            (out / "report" / "cost.md").read_text().splitlines()[2:]}
+    assert cost["ppo-jax"] == ["2", f"{metas[0]['run_wall'] / 60:.1f}"]
+    sb3 = [json.loads(f.read_text()) for f in (out / "runs").glob("*-ppo-s*.json")]
+    assert cost["ppo"] == [str(len(sb3)), f"{sum(m['run_wall'] for m in sb3) / 60:.1f}"]
 
 
 def test_the_backends_table_names_the_base_each_residual_corrected(tmp_path: Path) -> None:

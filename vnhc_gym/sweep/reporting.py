@@ -37,9 +37,9 @@ def report(out: str | Path, reps: int = REPORT_REPS, log: Callable[[str], None] 
     each interval (`REPORT_REPS` by default).
     Files: ``comparison.{json,csv,md}`` (every row), ``headline.md`` (one line a cell: the oracle,
     the best classical, the best learned and the verdict), ``verdict.png`` (the same at a glance),
-    ``learning_curves_<env>.png``, ``performance_profile.png``, and ``backends.{md,json}`` when a
+    ``learning_curves_<env>.png``, ``performance_profile.png``, ``backends.{md,json}`` when a
     learner has runs on both backends in a cell (the compiled runs' score against the SB3 runs'
-    interval, cell by cell).
+    interval, cell by cell), and ``cost.md`` (what the runs took, `_write_cost`).
     """
     runs = load_runs(out)
     dest = Path(out) / "report"
@@ -53,6 +53,31 @@ def report(out: str | Path, reps: int = REPORT_REPS, log: Callable[[str], None] 
     _write_tables(rows, dest)
     verdicts = _write_headline(rows, dest)
     _write_backends(rows, dest)
+    _write_cost(runs, dest)
     figures = [*_verdict_figure(rows, dest), *_figures(cells, dest)]
     log(f"report: {len(runs)} runs, {len(cells)} cells -> {dest}")
     return {"rows": rows, "verdicts": verdicts, "figures": figures, "codes": codes}
+
+
+def _write_cost(runs: list[dict[str, Any]], dest: Path) -> None:
+    """``cost.md``: per algorithm, its runs and the minutes they took on one core each (the sum of
+    their wall times, each measured with the sweep's other jobs on the other cores; a compiled
+    program that trained several seeds counts once), and that divided by two: the wall time of
+    those runs on two cores, one job a core."""
+    minutes: dict[str, float] = {}
+    count: dict[str, int] = {}
+    programs = set()
+    for r in runs:
+        algo = str(r.get("sweep_algo", r["spec"]["algo"]))
+        count[algo] = count.get(algo, 0) + 1
+        program = (algo, r["spec"]["env"], r["spec"]["scenario"], r.get("run_wall"))
+        if r.get("run_wall") is None or program in programs:
+            continue
+        programs.add(program)
+        minutes[algo] = minutes.get(algo, 0.0) + float(r["run_wall"]) / 60.0
+    lines = ["| algorithm | runs | core-minutes | minutes on 2 cores |", "|---|---:|---:|---:|"]
+    for a in sorted(count):
+        lines.append(f"| {a} | {count[a]} | {minutes.get(a, 0.0):.1f} | {minutes.get(a, 0.0) / 2:.1f} |")
+    total = sum(minutes.values())
+    lines.append(f"| all | {sum(count.values())} | {total:.1f} | {total / 2:.1f} |")
+    (dest / "cost.md").write_text("\n".join(lines) + "\n")
