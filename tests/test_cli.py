@@ -86,11 +86,12 @@ def test_bad_values_give_a_usage_error_not_a_traceback(args: list[str], tmp_path
 
 @pytest.mark.slow
 def test_train_default_path_in_a_subprocess(tmp_path: Path) -> None:
-    """``vnhc-gym train`` with its defaults (PPO on the USV, nominal, seed 0) and a short budget."""
+    """``vnhc-gym train --backend sb3`` with its defaults (PPO on the USV, nominal, seed 0) and a short budget."""
     pytest.importorskip("stable_baselines3")
     out = tmp_path / "runs"
-    proc = _run("train", "-n", "2048", "--out", str(out), "--eval-points", "2", "--test-episodes", "3",
-                "-params", "n_envs:8", "n_steps:64", "batch_size:128", "--env-kwargs", "reward:reciprocal")
+    proc = _run("train", "--backend", "sb3", "-n", "2048", "--out", str(out), "--eval-points", "2",
+                "--test-episodes", "3", "-params", "n_envs:8", "n_steps:64", "batch_size:128",
+                "--env-kwargs", "reward:reciprocal")
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = json.loads(proc.stdout[proc.stdout.index("{"):])
     stem = "usv-nominal-ppo-s0"
@@ -120,11 +121,11 @@ def test_train_default_path_in_a_subprocess(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_train_sac_with_its_defaults_in_a_subprocess(tmp_path: Path) -> None:
-    """``vnhc-gym train --algo sac`` with the file's settings and a short budget (past the warm-up,
-    so gradient steps run), keeping the best and the final model."""
+    """``vnhc-gym train --algo sac --backend sb3`` (SBX) with the file's settings and a short budget
+    (past the warm-up, so gradient steps run), keeping the best and the final model."""
     pytest.importorskip("sbx")
     out = tmp_path / "runs"
-    proc = _run("train", "--algo", "sac", "-n", "12000", "--out", str(out), "--eval-points", "2",
+    proc = _run("train", "--algo", "sac", "--backend", "sb3", "-n", "12000", "--out", str(out), "--eval-points", "2",
                 "--test-episodes", "3")
     assert proc.returncode == 0, proc.stderr[-3000:]
     stem = "usv-nominal-sac-s0"
@@ -177,6 +178,8 @@ def test_a_task_in_a_file_of_its_own_through_every_command(tmp_path: Path) -> No
     assert proc.returncode == 0, proc.stderr[-3000:]
     side = json.loads((tmp_path / "runs" / "puck-nominal-ppo-s0.json").read_text())
     assert side["env_id"] == env and side["test"]["n_episodes"] == 2
+    # PPO trains compiled unless told otherwise: the faster backend is the default.
+    assert side["backend"] == "jax" and (tmp_path / "runs" / "puck-nominal-ppo-s0.npz").is_file()
     proc = run("tune", "--gym-packages", "puck_task", "--env", "puck", "--algo", "tuned_law", "--trials", "2",
                "--eval-episodes", "2", "--out", "tuned")
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -281,4 +281,7 @@ def test_seeds_on_the_command_line_need_the_jax_backend() -> None:
     from vnhc_gym.cli import main
 
     with pytest.raises(SystemExit, match="--backend jax"):
-        main(["train", "--algo", "ppo", "--env", "usv", "--seeds", "0", "1"])
+        main(["train", "--algo", "ppo", "--backend", "sb3", "--env", "usv", "--seeds", "0", "1"])
+    # Recurrent PPO, which only SB3 trains, is on SB3 without being told.
+    with pytest.raises(SystemExit, match="--backend jax"):
+        main(["train", "--algo", "recurrent_ppo", "--env", "usv", "--seeds", "0", "1"])

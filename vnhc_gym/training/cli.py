@@ -6,7 +6,7 @@ import argparse
 import json
 from dataclasses import fields
 
-from vnhc_gym.training.config import ALGOS, BACKENDS, TrainConfig
+from vnhc_gym.training.config import ALGOS, BACKENDS, TrainConfig, default_backend
 
 __all__ = ["add_arguments", "parse_key_values", "run"]
 
@@ -21,9 +21,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=d.seed, help=f"(default {d.seed})")
     parser.add_argument("--seeds", type=int, nargs="+", default=None,
                         help="several seeds, trained in one compiled program (backend jax); replaces --seed")
-    parser.add_argument("--backend", default=d.backend, choices=BACKENDS,
-                        help=f"sb3: Stable-Baselines3 or SBX; jax: compiled PPO or SAC, either also as a residual "
-                             f"on the law (default {d.backend})")
+    parser.add_argument("--backend", default=None, choices=BACKENDS,
+                        help="jax: PPO or SAC compiled with the environment, either also as a residual on the law; "
+                             "sb3: Stable-Baselines3 (SBX for SAC), whose model files RL Zoo loads (default: jax, "
+                             "the faster, for the algorithms it trains; sb3 for recurrent_ppo)")
     parser.add_argument("-n", "--n-timesteps", type=int, default=None,
                         help="training budget (default: the hyperparameter file's)")
     parser.add_argument("--out", default=d.out, help=f"output folder (default {d.out})")
@@ -59,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
     from vnhc_gym.training.run import train
 
     names = {f.name for f in fields(TrainConfig)}
-    cfg = TrainConfig(**{k: v for k, v in vars(args).items() if k in names and k not in ("overrides", "env_kwargs")},
+    given = {k: v for k, v in vars(args).items() if k in names and k not in ("overrides", "env_kwargs", "backend")}
+    cfg = TrainConfig(**given, backend=args.backend or default_backend(args.algo),
                       overrides=parse_key_values(args.params),
                       env_kwargs=parse_key_values(args.env_kwargs, "--env-kwargs"))
     if args.seeds is not None and cfg.backend != "jax":

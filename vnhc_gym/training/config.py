@@ -28,6 +28,13 @@ BACKENDS = ("sb3", "jax")
 JAX_ALGOS = ("ppo", "residual_ppo", "sac", "residual_sac")
 
 
+def default_backend(algo: str) -> str:
+    """The backend of ``vnhc-gym train`` when none is named: ``"jax"`` for the algorithms it trains
+    (measured faster end to end, compilation included: `experiments/bench_train.py` for PPO,
+    `experiments/bench_offpolicy.py` for SAC), ``"sb3"`` for the others (recurrent PPO)."""
+    return "jax" if algo in JAX_ALGOS else "sb3"
+
+
 def resolve_env_id(env: str) -> str:
     """A task name (``"usv"``), an environment name (``"USVStream"``) or a full id -> the full id
     (the latest version unless the id names one)."""
