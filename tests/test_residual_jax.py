@@ -92,6 +92,13 @@ def test_an_untrained_residual_is_its_base_and_its_checkpoint_loads_as_a_residua
         scores, _ = jax.jit(lambda k: validation_scores(env, params, lambda o: base(o, params.nominal, params), k,
                                                         round(EPISODE_TIME / float(params.dt))))(keys)
     assert meta["curve"][0]["score"] == pytest.approx(float(np.mean(scores)), rel=1e-6)
+    # Its interval is the one an SB3 run records over the same episodes (`EvalResult.summary`): the
+    # report reads a residual's parity from its lower end.
+    from vnhc_gym import stats
+    iv = stats.interval_estimates({"x": np.asarray(scores)[None, :]}, metric="mean", reps=200)["x"]
+    point = meta["curve"][0]
+    assert point["score_low"] <= point["score"] <= point["score_high"]
+    assert (point["score_low"], point["score_high"]) == pytest.approx((iv.low, iv.high), rel=1e-5)
     path = tmp_path / f"{meta['name']}.npz"
     side = json.loads(path.with_suffix(".json").read_text())
     agent = load_agent(path)

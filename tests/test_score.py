@@ -235,12 +235,13 @@ def test_oracle_ignores_the_observation_noise_and_beats_the_law() -> None:
 
 # --------------------------------------------------------------------------- the report
 def _side(algo: str, seed: int, scores: list[float], curve: list[dict[str, float]] | None = None,
-          validation: float | None = None) -> dict[str, Any]:
+          validation: float | None = None, backend: str = "sb3") -> dict[str, Any]:
     n = len(scores)
     metrics = {"score": scores, "success": [1.0] * n, "mean_abs_phi_sf": [0.01] * n,
                "horizon_abs_phi_sf": [0.01] * n}
-    side: dict[str, Any] = {"name": f"usv-nominal-{algo}-s{seed}", "algo": algo, "code": "x",
-                            "spec": {"env": "usv", "scenario": "nominal", "algo": algo, "seed": seed},
+    side: dict[str, Any] = {"name": f"usv-nominal-{algo}-{backend}-s{seed}", "algo": algo, "code": "x",
+                            "spec": {"env": "usv", "scenario": "nominal", "algo": algo, "seed": seed,
+                                     "backend": backend},
                             "test": {"metrics": metrics}}
     if curve is not None:
         side["curve"] = curve
@@ -315,6 +316,29 @@ def test_a_verdict_says_why_from_the_numbers(tmp_path: Path) -> None:
     assert cell["winner"] == "none" and cell["best_learned"] == "residual_ppo"
     assert cell["why"] == ("no headroom (the oracle is +0.0020 above the best classical); no residual run beat its "
                            "base on validation; from scratch 0.4050 behind")
+
+
+def test_a_compiled_residual_agent_is_read_as_residual_not_from_scratch(tmp_path: Path) -> None:
+    """The compiled backend's rows are named ``residual_ppo-jax``: its parity is still beating its own
+    base, its runs are counted among the residual ones, and the gap from scratch is the compiled PPO's."""
+    rep = _report(tmp_path, [
+        _side("tuned_law", 0, [0.90] * 10, validation=0.90),
+        _side("ppo", 0, [0.5] * 10, [_point(0, 0.1, 0.0, 0.0), _point(100, 0.50, 0.4, 1.0)], backend="jax"),
+        # Seed 0's interval clears its start (its base) at 200 steps; seed 1 never leaves it.
+        _side("residual_ppo", 0, [0.90] * 10, [_point(0, 0.90, 0.88, 0.0), _point(100, 0.92, 0.89, 1.0),
+                                               _point(200, 0.93, 0.91, 2.0)], backend="jax"),
+        _side("residual_ppo", 1, [0.90] * 10, [_point(0, 0.90, 0.88, 0.0), _point(100, 0.90, 0.88, 1.0)],
+              backend="jax"),
+        # A curve of means only: whether it beat its base is not known, so it is not counted a miss.
+        _side("residual_ppo", 2, [0.90] * 10, [{"steps": 0, "wall": 0.0, "score": 0.90},
+                                               {"steps": 100, "wall": 1.0, "score": 0.95}], backend="jax"),
+    ])
+    rows = {r["algo"]: r for r in rep["rows"]}
+    assert rows["residual_ppo-jax"]["parity_runs"] == "1/2" and rows["ppo-jax"]["parity_runs"] == "0/1"
+    (cell,) = rep["verdicts"]
+    assert cell["best_learned"] == "residual_ppo-jax"
+    assert cell["why"].endswith("1 of 2 residual runs beat their base on validation (1 more without a recorded "
+                                "interval); from scratch 0.4000 behind")
 
 
 @pytest.mark.parametrize(("oracle", "says"), [

@@ -56,13 +56,17 @@ def _parity(r: dict[str, Any], target: float, residual: bool) -> tuple[float | N
     return (None, None) if hit is None else (float(hit["steps"]), float(hit["wall"]))
 
 
+def _has_intervals(r: dict[str, Any]) -> bool:
+    """Whether every validation point of a run's curve carries its interval (`_parity` needs them)."""
+    return all("score_low" in p for p in r.get("curve", []) if "score" in p)
+
+
 def _validation_score(r: dict[str, Any]) -> float:
     """A run's validation score: a classical run's tuned setting's, a learned run's best checkpoint's
     (the model its test evaluates).  Choices between algorithms read this, never the test episodes."""
     if "validation_score" in r:
         return float(r["validation_score"])
     return max((float(p["score"]) for p in r.get("curve", []) if "score" in p), default=-math.inf)
-
 
 
 def _cells(runs: list[dict[str, Any]], log: Callable[[str], None]) -> dict[tuple[str, str], Cell]:
@@ -114,17 +118,22 @@ def _rows(cells: dict[tuple[str, str], Cell], reps: int) -> list[dict[str, Any]]
                 poi = stats.probability_of_improvement_interval(values, best_scores, reps=reps)
                 row.update({"poi": poi.point, "poi_low": poi.low, "poi_high": poi.high})
                 target = float(classical[best_name]["validation_score"])  # type: ignore[index]
-                reached = [_parity(r, target, algo in RESIDUAL_ALGOS) for r in rs]
+                residual = algo_of(algo) in RESIDUAL_ALGOS
+                # A residual run's parity reads its curve's intervals; a run that recorded none (the
+                # compiled trainer's before it kept them) is left out of the count, not counted a miss.
+                judged = [r for r in rs if not residual or _has_intervals(r)]
+                reached = [_parity(r, target, residual) for r in judged]
                 hit = [p for p in reached if p[0] is not None]
-                row["parity_runs"] = f"{len(hit)}/{len(rs)}"
+                row["parity_hits"], row["parity_judged"] = len(hit), len(judged)
+                row["parity_runs"] = f"{len(hit)}/{len(judged)}" if judged else "not recorded"
                 # The median over the runs, counting a run that never got there as slower than any
                 # that did: defined only when at least half of the runs reached parity.
-                if 2 * len(hit) > len(rs):
-                    missing = [math.inf] * (len(rs) - len(hit))
+                if 2 * len(hit) > len(judged):
+                    missing = [math.inf] * (len(judged) - len(hit))
                     order = sorted(float(p[0] or 0.0) for p in hit) + missing
                     walls = sorted(float(p[1] or 0.0) for p in hit) + missing
-                    row["parity_steps"] = order[(len(rs) - 1) // 2]
-                    row["parity_seconds"] = walls[(len(rs) - 1) // 2]
+                    row["parity_steps"] = order[(len(judged) - 1) // 2]
+                    row["parity_seconds"] = walls[(len(judged) - 1) // 2]
                 else:
                     row["parity_steps"] = row["parity_seconds"] = None
             rows.append(row)

@@ -40,6 +40,8 @@ def _poi(r: dict[str, Any]) -> str:
 def _parity_text(r: dict[str, Any]) -> tuple[str, str]:
     if "parity_runs" not in r:
         return "", ""
+    if not r.get("parity_judged", 1):
+        return "not recorded", "not recorded"
     if r["parity_steps"] is None:
         return f"not reached ({r['parity_runs']})", "not reached"
     return f"{r['parity_steps']:.3g} ({r['parity_runs']})", f"{r['parity_seconds']:.0f}"
@@ -271,10 +273,20 @@ def _why(winner: str, oracle: dict[str, Any] | None, best: dict[str, Any] | None
             kind = headroom_kind(env, scenario)
             parts.append(f"headroom {headroom:+.4f} (the oracle above the best classical)"
                          + (f": {kind}" if kind else ""))
-    residual = [r for r in learned if r["algo"] in RESIDUAL_ALGOS]
-    if residual and all(r.get("parity_steps") is None for r in residual):
-        parts.append("no residual run beat its base on validation")
-    scratch = [r for r in learned if r["algo"] not in RESIDUAL_ALGOS]
+    # Rows are named by label ("residual_ppo-jax"): the algorithm decides what a row is.
+    residual = [r for r in learned if algo_of(r["algo"]) in RESIDUAL_ALGOS]
+    if residual:
+        beat = sum(r.get("parity_hits", 0) for r in residual)
+        judged = sum(r.get("parity_judged", 0) for r in residual)
+        unjudged = sum(r["runs"] for r in residual) - judged
+        if judged and not beat and not unjudged:
+            parts.append("no residual run beat its base on validation")
+        elif judged:
+            parts.append(f"{beat} of {judged} residual runs beat their base on validation"
+                         + (f" ({unjudged} more without a recorded interval)" if unjudged else ""))
+        else:
+            parts.append(f"whether the {unjudged} residual runs beat their base on validation is not recorded")
+    scratch = [r for r in learned if algo_of(r["algo"]) not in RESIDUAL_ALGOS]
     if scratch:
         behind = best["score"] - max(r["score"] for r in scratch)
         if behind > 0:

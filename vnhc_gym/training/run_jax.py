@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import vnhc_gym
+from vnhc_gym import stats
 from vnhc_gym.envs.functional import make_jax
 from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate
 from vnhc_gym.training import ppo_jax as P
@@ -328,8 +329,11 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
         steps = int(np.asarray(ts.iteration)[0]) * settings.rollout
         params = jax.device_get(ts.params)
         for i, meta in enumerate(metas):
+            # The interval SB3's runs record too (`EvalResult.summary`): a residual agent's parity
+            # is its lower end clearing its base's score.
+            iv = stats.interval_estimates({"x": scores[i][None, :]}, metric="mean", reps=200)["x"]
             point = {"steps": steps, "wall": t0 - t_start - t_eval, "score": float(scores[i].mean()),
-                     "success": float(alive[i].mean())}
+                     "score_low": iv.low, "score_high": iv.high, "success": float(alive[i].mean())}
             curves[i].append(point)
             if log is not None:
                 log(f"{meta['name']}: {steps:>9d} steps, {point['wall']:6.0f} s: validation score "
