@@ -14,7 +14,7 @@ a rerun, so the grid can run over several sittings), on a process pool or a Ray 
 writes the report (the score's intervals, the verdict per cell, steps and seconds to parity,
 learning curves, the verdict figure, a performance profile) to ``<out>/report``.
 
-    python experiments/train_compare.py                       # the default grid, about 9 hours on 2 cores
+    python experiments/train_compare.py                       # the default grid, about 10 hours on 2 cores
     python experiments/train_compare.py --quick               # a minute or two: two tasks, the pipeline end to end
     python experiments/train_compare.py --large --out results/large   # more seeds, longer budgets
     python experiments/train_compare.py --learners ppo residual_ppo ppo_history sac residual_sac   # SAC too
