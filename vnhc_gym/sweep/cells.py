@@ -108,10 +108,11 @@ def _rows(cells: dict[tuple[str, str], Cell], reps: int) -> list[dict[str, Any]]
                 "best_classical": best_name,
                 "settings": rs[0].get("settings"),
             }
-            # The base(s) a residual agent's runs corrected, from their configs (no base named: the law).
-            bases = {str(r["config"].get("residual_base") or "law") for r in rs if "config" in r}
-            if algo_of(algo) in RESIDUAL_ALGOS and bases:
-                row["base"] = ", ".join(sorted(bases))
+            if algo_of(algo) in RESIDUAL_ALGOS:
+                # The base(s) its runs corrected, from their configs (no base named: the law).
+                bases = {str(r["config"].get("residual_base") or "law") for r in rs if "config" in r}
+                if bases:
+                    row["base"] = ", ".join(sorted(bases))
             if "solve_seconds_per_step" in rs[0]:  # the planning baseline's cost, beside its score
                 row["solve_ms_per_step"] = 1e3 * float(np.mean([r["solve_seconds_per_step"] for r in rs]))
             if algo_of(algo) in LEARNED_ALGOS and best_scores is not None:
