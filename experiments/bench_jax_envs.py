@@ -1,4 +1,4 @@
-"""Throughput of the environments as pure JAX functions (`vnhc_gym.envs.functional.make_jax`),
+"""Throughput of the environments as pure JAX functions (`vnhc_gym.make_jax`),
 beside the native vector environments, on every task.  Writes results/bench_jax_envs.md and .json.
 
     python experiments/bench_jax_envs.py            # a few minutes
@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import vnhc_gym  # noqa: F401
-from vnhc_gym.envs.functional import make_jax
+from vnhc_gym import make_jax
 from vnhc_gym.tasks import env_ids
 
 

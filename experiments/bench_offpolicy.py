@@ -38,7 +38,7 @@ if lib == "bound":
     import time
     import jax
     import jax.numpy as jnp
-    from vnhc_gym.envs.functional import make_jax
+    from vnhc_gym import make_jax
     from vnhc_gym.training import sac_jax as S
     hp = load_hyperparams("sac", env_id(task))
     s = S.settings_from(hp, "sac hyperparameters")

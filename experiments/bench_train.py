@@ -110,7 +110,7 @@ def split(task: str, chunk: int = 10) -> dict[str, float]:
     import jax
     import jax.numpy as jnp
 
-    from vnhc_gym.envs.functional import make_jax
+    from vnhc_gym import make_jax
     from vnhc_gym.training import ppo_jax as P
     from vnhc_gym.training.hyperparams import load_hyperparams
 

@@ -33,8 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from vnhc_gym import make_jax
 from vnhc_gym.envs.config import SCENARIOS
-from vnhc_gym.envs.functional import make_jax
 from vnhc_gym.evaluation import TEST_SEED
 from vnhc_gym.tasks import env_ids
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import vnhc_gym  # noqa: F401  (registers the environments)
-from vnhc_gym.envs.functional import make_jax
+from vnhc_gym import make_jax
 from vnhc_gym.tasks import env_ids
 
 ENVS = env_ids("v1", shipped_only=True)

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vnhc_gym.envs.functional import make_jax
+from vnhc_gym import make_jax
 from vnhc_gym.training.agents import _Network
 from vnhc_gym.wrappers.history_jax import HistoryEnv
 

@@ -184,8 +184,8 @@ def test_the_validation_episodes_are_those_an_sb3_run_validates_on(env_id: str, 
     """In float64 (as the trainer runs them) the compiled validation's episodes, kicks and
     observation noise included, are the Gymnasium environment's of the validation seeds: the same
     policy scores the same on each as `evaluate` measures it."""
+    from vnhc_gym import make_jax
     from vnhc_gym.baselines import ZeroPolicy
-    from vnhc_gym.envs.functional import make_jax
     from vnhc_gym.evaluation import VALIDATION_SEED, evaluate
     from vnhc_gym.training.run_jax import EPISODE_TIME, validation_scores
 

@@ -10,8 +10,8 @@ import jax
 import numpy as np
 import pytest
 
+from vnhc_gym import make_jax
 from vnhc_gym.baselines import GeometricController
-from vnhc_gym.envs.functional import make_jax
 from vnhc_gym.tasks import env_ids
 from vnhc_gym.wrappers.residual_jax import ResidualEnv, law_base
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import ast
 import inspect
 import re
-import textwrap
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -155,9 +154,69 @@ def test_task_hooks_are_short(name: str) -> None:
 
 
 def test_tutorial_task_module_is_short() -> None:
+    """The tutorial's task is at most 80 lines of code besides its docstrings (the card among them)."""
     from conftest import TUTORIAL
 
     block = next(b for b in re.findall(r"```python\n(.*?)```", TUTORIAL.read_text(), re.S)
                  if b.startswith("# puck_task.py"))
-    code = [ln for ln in textwrap.dedent(block).splitlines() if ln.strip() and not ln.strip().startswith("#")]
-    assert len(code) < 150
+    tree = ast.parse(block)
+    docstrings: set[int] = set()
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if isinstance(body, list) and body and isinstance(body[0], ast.Expr) \
+                and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str):
+            docstrings |= set(range(body[0].lineno, body[0].end_lineno + 1))  # type: ignore[operator]
+    code = [ln for i, ln in enumerate(block.splitlines(), 1)
+            if i not in docstrings and ln.strip() and not ln.strip().startswith("#")]
+    assert len(docstrings) > 20, "the card is a docstring"
+    assert len(code) <= 80, len(code)
+
+
+# --------------------------------------------------------------------------- layers
+PACKAGE = TASK_DIR.parent
+
+
+def _runtime_imports(path: Path) -> set[str]:
+    """The ``vnhc_gym`` modules a file imports when it runs (anywhere in it, functions included;
+    not under ``if TYPE_CHECKING``, which only type checkers read)."""
+    tree = ast.parse(path.read_text())
+    typing_only = {id(n) for node in ast.walk(tree) if isinstance(node, ast.If)
+                   and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING"
+                   for n in ast.walk(node)}
+    found = set()
+    for node in ast.walk(tree):
+        if id(node) in typing_only:
+            continue
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module)
+        elif isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+    return {m for m in found if m.startswith("vnhc_gym")}
+
+
+@pytest.mark.parametrize(("layer", "forbidden"), [
+    ("mechanics", ("vnhc_gym.envs", "vnhc_gym.tasks", "vnhc_gym.systems")),
+    ("systems", ("vnhc_gym.envs", "vnhc_gym.tasks")),
+    ("envs", ("vnhc_gym.tasks",)),
+])
+def test_a_layer_never_imports_the_layers_above_it(layer: str, forbidden: tuple[str, ...]) -> None:
+    """The math knows nothing of environments or tasks, and the environments nothing of the task
+    registry: every import points down, so none needs to hide inside a function to break a cycle."""
+    bad = {f"{path.relative_to(PACKAGE)}: {m}" for path in sorted((PACKAGE / layer).rglob("*.py"))
+           for m in _runtime_imports(path) if m.startswith(forbidden)}
+    assert not bad, sorted(bad)
+    assert _runtime_imports(PACKAGE / "envs" / "runtime.py"), "the parser sees the package's imports"
+
+
+def test_a_task_without_a_scene_has_no_render_modes() -> None:
+    """`ConstraintEnv` reads from the task whether it draws: a task class that keeps `Task.scene`
+    gets an environment with no render modes, and one that defines a scene gets both."""
+    from vnhc_gym.envs import ConstraintEnv
+
+    drawn = TASKS["usv"].task_class
+    plain = type("PlainTask", (drawn,), {"scene": Task.scene})
+    assert drawn.draws() and not plain.draws()
+    plain_env = type("PlainEnv", (ConstraintEnv,), {"task_class": plain})
+    drawn_env = type("DrawnEnv", (ConstraintEnv,), {"task_class": drawn})
+    assert plain_env.metadata["render_modes"] == []
+    assert set(drawn_env.metadata["render_modes"]) == {"human", "rgb_array"}

@@ -4,7 +4,7 @@ Importing the package registers every task of `vnhc_gym.tasks` as ``vnhc_gym/<En
 and ``-v1`` (``gym.make("vnhc_gym:vnhc_gym/USVStream-v1")`` imports it for you).
 """
 
-from vnhc_gym.tasks import TASKS, env_id, env_ids
+from vnhc_gym.tasks import TASKS, env_id, env_ids, make_jax
 
 __version__ = "0.3.0"
 
@@ -20,4 +20,4 @@ def __getattr__(name: str):  # lazy: importing vnhc_gym must not import SB3 / to
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["MAX_EPISODE_STEPS", "TASKS", "__version__", "env_id", "env_ids"]
+__all__ = ["MAX_EPISODE_STEPS", "TASKS", "__version__", "env_id", "env_ids", "make_jax"]

@@ -106,10 +106,8 @@ class ConstraintEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        from vnhc_gym.tasks.base import Task  # here: the task modules import this one
-
         task = cls.__dict__.get("task_class")
-        if task is not None and task.scene is Task.scene and cls._render_frame is ConstraintEnv._render_frame:
+        if task is not None and not task.draws() and cls._render_frame is ConstraintEnv._render_frame:
             cls.metadata = {**cls.metadata, "render_modes": []}  # a task with no picture renders nothing
 
     def _render_frame(self, row: int) -> NDArray[np.uint8] | None:

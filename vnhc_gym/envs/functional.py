@@ -39,7 +39,7 @@ from gymnasium import spaces
 
 from vnhc_gym.mechanics import functional as core
 
-__all__ = ["EnvParams", "EnvState", "FunctionalEnv", "Step", "TaskFunctions", "make_jax"]
+__all__ = ["EnvParams", "EnvState", "FunctionalEnv", "Step", "TaskFunctions"]
 
 Array = Any  # a jax.Array
 
@@ -429,36 +429,3 @@ def _when(pred: Array, draw: Callable[[Array], Array], otherwise: Callable[[Arra
     threefry draws cost more than the physics of a step on a CPU).
     """
     return jax.lax.cond(pred, draw, otherwise, key)
-
-
-def make_jax(env_id: str, scenario: str = "nominal", *, feedback: str = "open", gains: Any = 1.0,
-             max_steps: int = 400, **kwargs: Any) -> tuple[FunctionalEnv, EnvParams]:
-    """A registered environment as pure JAX functions with gymnax's interface, and its parameters.
-
-    The same keyword arguments as ``gym.make(env_id, scenario=..., **kwargs)`` (checked the same
-    way), as in ``gymnax.make``::
-
-        env, params = make_jax("vnhc_gym/USVStream-v1", scenario="noisy")
-        obs, state = env.reset(jax.random.key(0), params)
-        obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
-
-    Parameters
-    ----------
-    env_id : str
-        ``"vnhc_gym/USVStream-v1"`` (the version's defaults apply: ``-v0``'s raw reward), or a task name.
-    scenario : str
-    feedback, gains : see `FunctionalEnv` (the law inside the integrator)
-    max_steps : int
-        The time limit of the automatic reset (the registry's 400 steps).
-    """
-    from vnhc_gym.envs.config import configure
-    from vnhc_gym.tasks import VERSIONS, task_of_env_id
-
-    entry = task_of_env_id(env_id)
-    version = env_id.rsplit("-", 1)[-1] if "-v" in env_id else "v1"
-    task_class = entry.task_class
-    task_class.check_definition()
-    config, options = configure(scenario, {**VERSIONS.get(version, {}), **kwargs}, task_class.Options)
-    env: FunctionalEnv
-    env, params = task_class(config, options).functional(feedback=feedback, gains=gains, max_steps=max_steps)
-    return env, params

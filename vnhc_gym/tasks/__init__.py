@@ -12,12 +12,15 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass, field
 from types import ModuleType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from gymnasium.envs.registration import register, registry
 
-__all__ = ["TASKS", "Task", "TaskEntry", "VERSIONS", "env_id", "env_ids", "get_task", "register_task",
-           "shipped_tasks", "task_of_env_id"]
+if TYPE_CHECKING:
+    from vnhc_gym.envs.functional import EnvParams, FunctionalEnv
+
+__all__ = ["TASKS", "Task", "TaskEntry", "VERSIONS", "env_id", "env_ids", "get_task", "make_jax",
+           "register_task", "shipped_tasks", "task_of_env_id"]
 
 
 def __getattr__(name: str) -> Any:  # Task imports JAX: only when a task author asks for it
@@ -143,3 +146,35 @@ register_task("usv", "USVStream", "vnhc_gym.tasks.usv")
 register_task("sled", "SledCruise", "vnhc_gym.tasks.sled")
 register_task("cartpole", "CartPoleBalance", "vnhc_gym.tasks.cartpole")
 register_task("spacecraft", "SpacecraftPoint", "vnhc_gym.tasks.spacecraft")
+
+
+def make_jax(env_id: str, scenario: str = "nominal", *, feedback: str = "open", gains: Any = 1.0,
+             max_steps: int = 400, **kwargs: Any) -> tuple[FunctionalEnv, EnvParams]:
+    """A registered environment as pure JAX functions with gymnax's interface, and its parameters.
+
+    The same keyword arguments as ``gym.make(env_id, scenario=..., **kwargs)`` (checked the same
+    way), as in ``gymnax.make``::
+
+        env, params = make_jax("vnhc_gym/USVStream-v1", scenario="noisy")
+        obs, state = env.reset(jax.random.key(0), params)
+        obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+
+    Parameters
+    ----------
+    env_id : str
+        ``"vnhc_gym/USVStream-v1"`` (the version's defaults apply: ``-v0``'s raw reward), or a task name.
+    scenario : str
+    feedback, gains : see `FunctionalEnv` (the law inside the integrator)
+    max_steps : int
+        The time limit of the automatic reset (the registry's 400 steps).
+    """
+    # Here, not at the top: the registry is imported with `vnhc_gym`, and JAX only when an
+    # environment is made.
+    from vnhc_gym.envs.config import configure
+
+    entry = task_of_env_id(env_id)
+    version = env_id.rsplit("-", 1)[-1] if "-v" in env_id else "v1"
+    task_class = entry.task_class
+    task_class.check_definition()
+    config, options = configure(scenario, {**VERSIONS.get(version, {}), **kwargs}, task_class.Options)
+    return task_class(config, options).functional(feedback=feedback, gains=gains, max_steps=max_steps)

@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vnhc_gym.envs.config import EnvConfig, TaskOptions
+from vnhc_gym.envs.functional import EnvParams, FunctionalEnv, TaskFunctions
 from vnhc_gym.mechanics import ConstrainedSystem
 
 __all__ = ["Task"]
@@ -266,8 +267,6 @@ class Task:
         max_steps : int
             The time limit of `FunctionalEnv.step`'s automatic reset (the registry's 400).
         """
-        from vnhc_gym.envs.functional import EnvParams, FunctionalEnv, TaskFunctions
-
         module = sys.modules[type(self).__module__]
         where = f"task {self.name!r} ({type(self).__module__})"
         missing = [f for f in ("initial", "observation") if not callable(getattr(module, f, None))]
@@ -452,3 +451,9 @@ class Task:
         links, every ``phi`` component), from its state, ``phi`` and true parameters.  A task that
         does not define it has no render modes."""
         raise NotImplementedError
+
+    @classmethod
+    def draws(cls) -> bool:
+        """Whether the task defines its own `scene` (an environment of a task that does not has no
+        render modes)."""
+        return cls.scene is not Task.scene

@@ -41,8 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import vnhc_gym
-from vnhc_gym import stats
-from vnhc_gym.envs.functional import make_jax
+from vnhc_gym import make_jax, stats
 from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate
 from vnhc_gym.training import ppo_jax as P
 from vnhc_gym.training import sac_jax as S
