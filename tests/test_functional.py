@@ -22,7 +22,8 @@ import sympy as sp
 from vnhc_gym.mechanics import MechanicalSystem, VelocityConstraint, derive_law
 from vnhc_gym.mechanics import functional as F
 from vnhc_gym.mechanics.printing import print_module
-from vnhc_gym.systems.printed import FOLDER, SOURCES, load, text
+from vnhc_gym.systems.printed import FOLDER, SOURCES, load
+from vnhc_gym.systems.printed.__main__ import BUILDS, text
 
 
 @pytest.fixture(autouse=True)
@@ -144,6 +145,11 @@ def test_printed_modules_are_what_printing_gives(name: str) -> None:
     minutes: ``python -m vnhc_gym.systems.printed spacecraft --check`` checks it)."""
     assert (FOLDER / f"{name}.py").read_text() == text(name), \
         f"vnhc_gym/systems/printed/{name}.py is out of date: python -m vnhc_gym.systems.printed {name}"
+
+
+def test_every_printed_module_has_its_sympy_definition() -> None:
+    """The command that prints the modules knows the definition of each, and of nothing else."""
+    assert list(BUILDS) == list(SOURCES)
 
 
 def test_every_printed_module_is_shipped_and_loads() -> None:

@@ -149,7 +149,7 @@ def test_initial_networks_are_sb3s_orthogonal_ones() -> None:
 
 
 def test_the_numpy_actor_is_the_networks_mean_clipped() -> None:
-    from vnhc_gym.training.run_jax import JaxActor
+    from vnhc_gym.training.numpy_actor import JaxActor
 
     s = P.PPOSettings(net_arch=(16, 8))
     params = P.init_params(jax.random.key(3), s=s, obs_dim=5, act_dim=2)

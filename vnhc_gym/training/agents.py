@@ -18,6 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from vnhc_gym.training.numpy_actor import JaxActor
+
 __all__ = ["ZOO_DIR", "AgentPolicy", "UntrustedFileWarning", "algorithm_class", "list_zoo", "load_agent",
            "sidecar_of"]
 
@@ -187,8 +189,6 @@ def load_agent(path_or_name: str | Path, env: Any = None) -> AgentPolicy:
     """
     p = Path(path_or_name)
     if p.suffix == ".npz":  # plain arrays, no pickles: no warning
-        from vnhc_gym.training.run_jax import JaxActor
-
         if not p.exists():
             raise FileNotFoundError(f"no agent {path_or_name!r}")
         meta = sidecar_of(p)

@@ -38,13 +38,13 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from numpy.typing import NDArray
 
 import vnhc_gym
 from vnhc_gym import make_jax, stats
 from vnhc_gym.evaluation import TEST_SEED, VALIDATION_SEED, evaluate
 from vnhc_gym.training import ppo_jax as P
 from vnhc_gym.training import sac_jax as S
+from vnhc_gym.training.agents import AgentPolicy
 from vnhc_gym.training.config import (
     JAX_ALGOS,
     SIDECAR_FORMAT,
@@ -55,10 +55,11 @@ from vnhc_gym.training.config import (
     resolve_env_id,
     run_stem,
 )
+from vnhc_gym.training.numpy_actor import JaxActor
 from vnhc_gym.wrappers.history_jax import HistoryEnv
 from vnhc_gym.wrappers.residual_jax import BASES, ResidualEnv, kalman_base, law_base
 
-__all__ = ["JaxActor", "train_seeds"]
+__all__ = ["train_seeds"]
 
 #: The checkpoint's arrays, by algorithm (the sidecar's ``checkpoint_format``).
 CHECKPOINT_FORMATS = {"ppo": "npz: pi.<i>.w/b, pi_out.w/b, log_std, vf.<i>.w/b, vf_out.w/b",
@@ -67,60 +68,6 @@ CHECKPOINT_FORMATS.update({f"residual_{a}": CHECKPOINT_FORMATS[a] + "; on (obs, 
                            for a in ("ppo", "sac")})
 #: The time the validation and test episodes last (s): `evaluate`'s default horizon.
 EPISODE_TIME = 20.0
-_NUMPY_ACTIVATIONS: dict[str, Callable[[Any], Any]] = {
-    "Tanh": np.tanh, "ReLU": lambda x: np.maximum(x, 0.0), "ELU": lambda x: np.where(x > 0, x, np.expm1(x)),
-    "LeakyReLU": lambda x: np.where(x > 0, x, 0.01 * x), "SiLU": lambda x: x / (1.0 + np.exp(-x))}
-
-
-class JaxActor:
-    """A compiled PPO's or SAC's policy network in numpy (what `load_agent` returns inside an
-    `AgentPolicy`).
-
-    ``predict(obs) -> (action, None)``: the deterministic action, the network's mean clipped to
-    ``[-1, 1]`` (``squash="clip"``, PPO) or its ``tanh`` (``squash="tanh"``, SAC), for one
-    observation or a batch (SB3's interface).  ``deterministic=False`` samples the Gaussian (its
-    log standard deviation ``log_std``, or the head ``log_std_out``) before the squash.
-    """
-
-    def __init__(self, arrays: dict[str, NDArray[np.float32]], activation: str = "Tanh", squash: str = "clip") -> None:
-        if activation not in _NUMPY_ACTIVATIONS:
-            raise ValueError(f"activation must be one of {sorted(_NUMPY_ACTIVATIONS)}, got {activation!r}")
-        if squash not in ("clip", "tanh"):
-            raise ValueError(f"squash must be 'clip' or 'tanh', got {squash!r}")
-        hidden = sorted({int(k.split(".")[1]) for k in arrays if k.startswith("pi.")})
-        if (hidden != list(range(len(hidden))) or "pi_out.w" not in arrays
-                or not ({"log_std"} <= set(arrays) or {"log_std_out.w", "log_std_out.b"} <= set(arrays))):
-            raise ValueError(f"not a compiled PPO's or SAC's networks: arrays {sorted(arrays)}")
-        self.layers = [(np.asarray(arrays[f"pi.{i}.w"], np.float32), np.asarray(arrays[f"pi.{i}.b"], np.float32))
-                       for i in hidden]
-        self.out = (np.asarray(arrays["pi_out.w"], np.float32), np.asarray(arrays["pi_out.b"], np.float32))
-        self.log_std = np.asarray(arrays["log_std"], np.float32) if "log_std" in arrays else None
-        self.log_std_out = ((np.asarray(arrays["log_std_out.w"], np.float32),
-                             np.asarray(arrays["log_std_out.b"], np.float32)) if self.log_std is None else None)
-        self.act = _NUMPY_ACTIVATIONS[activation]
-        self.squash = squash
-
-    @classmethod
-    def load(cls, path: str | Path, activation: str = "Tanh", squash: str = "clip") -> JaxActor:
-        with np.load(path, allow_pickle=False) as data:
-            return cls({k: data[k] for k in data.files}, activation, squash)
-
-    def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
-                deterministic: bool = True) -> tuple[NDArray[np.float32], Any]:
-        x = np.asarray(observation, dtype=np.float32)
-        for w, b in self.layers:
-            x = self.act(x @ w + b)
-        mean = x @ self.out[0] + self.out[1]
-        if not deterministic:
-            if self.log_std_out is not None:
-                log_std = np.clip(x @ self.log_std_out[0] + self.log_std_out[1], S.LOG_STD_MIN, S.LOG_STD_MAX)
-            else:
-                log_std = self.log_std
-            mean = mean + np.exp(log_std) * np.random.default_rng().standard_normal(mean.shape)
-        action = np.tanh(mean) if self.squash == "tanh" else np.clip(mean, -1.0, 1.0)
-        return action.astype(np.float32), state
-
-
 def validation_scores(env: Any, env_params: Any, act: Callable[[Any], Any], keys: Any, horizon: int
                       ) -> tuple[Any, Any]:
     """A deterministic policy's ``score`` (the return over ``horizon`` steps per step, the steps
@@ -362,8 +309,6 @@ def train_seeds(cfg: TrainConfig, seeds: Sequence[int], log: Callable[[str], Non
         _save(out_dir / f"{meta['name']}-final.npz", algo.to_numpy(jax.tree.map(lambda x, i=i: x[i], params)))
         test = None
         if cfg.test_episodes > 0:  # the test: the best validated networks, on the held-out seeds
-            from vnhc_gym.training.agents import AgentPolicy
-
             agent = AgentPolicy(JaxActor.load(out_dir / f"{meta['name']}.npz", activation, squash), meta)
             if residual is not None:  # its base, built for the test's environment
                 import gymnasium as gym

@@ -38,6 +38,7 @@ import optax
 
 from vnhc_gym.envs.functional import EnvParams, EnvState, FunctionalEnv
 from vnhc_gym.training.hyperparams import checked_section
+from vnhc_gym.training.numpy_actor import LOG_STD_MAX, LOG_STD_MIN  # the saved actor clips alike
 
 __all__ = ["KNOWN_KEYS", "Learner", "SACSettings", "TrainState", "actor_apply", "init", "iterations", "settings_from",
            "to_numpy"]
@@ -50,7 +51,6 @@ KNOWN_KEYS = frozenset({"n_envs", "n_timesteps", "policy", "learning_rate", "buf
                         "batch_size", "tau", "gamma", "train_freq", "gradient_steps", "ent_coef", "target_entropy",
                         "policy_kwargs"})
 _POLICY_KWARGS = frozenset({"net_arch"})
-LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  #: the actor's log standard deviation is clipped to these (SBX's)
 
 
 class SACSettings(NamedTuple):
