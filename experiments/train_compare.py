@@ -51,10 +51,10 @@ from vnhc_gym.tasks import TASKS
 #: The tasks of ``--quick``: the two with the cheapest training steps.
 QUICK_TASKS = ("sled", "cartpole")
 
-SCENARIOS = ["nominal", "saturated", "mismatch", "noisy", "coarse", "disturbance"]
+SCENARIOS = ["nominal", "saturated", "mismatch", "noisy", "coarse", "disturbance", "delay", "lag", "unmodelled"]
 #: Five seeds where the law is weakest and on nominal, three elsewhere.
 SEEDS = {"nominal": range(5), "noisy": range(5), "mismatch": range(5), "disturbance": range(5),
-         "saturated": range(3), "coarse": range(3)}
+         "saturated": range(3), "coarse": range(3), "delay": range(5), "lag": range(5), "unmodelled": range(5)}
 #: The learned agents of the default grid and the backend each trains on: PPO on both (the report's
 #: ``backends.md`` places the compiled runs against SB3's, cell by cell), residual PPO on
 #: Stable-Baselines3 (its base is the cell's best classical baseline, which the compiled backend offers

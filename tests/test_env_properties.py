@@ -89,9 +89,12 @@ def test_any_action_is_stepped_or_refused(env_id: str, data: st.DataObject) -> N
             assert r == t_r
             assert env.observation_space.contains(obs) and np.all(np.isfinite(obs))
             assert math.isfinite(r) and lo <= r <= hi
-            # atol: XLA flushes subnormal numbers to zero (an action of 5e-324 gives a force of 0)
-            np.testing.assert_allclose(info["force"], np.clip(a.astype(np.float64), -1, 1) * bound, rtol=1e-15,
-                                       atol=1e-300)
+            if env.unwrapped.config.structural:  # a delay or a lag applies an earlier or a lagged command
+                assert np.all(np.abs(info["force"]) <= bound * (1 + 1e-12))
+            else:
+                # atol: XLA flushes subnormal numbers to zero (an action of 5e-324 gives a force of 0)
+                np.testing.assert_allclose(info["force"], np.clip(a.astype(np.float64), -1, 1) * bound, rtol=1e-15,
+                                           atol=1e-300)
             if term or trunc:
                 env.reset()
                 twin.reset()

@@ -18,12 +18,17 @@
 * [`SafetyFilter`][vnhc_gym.baselines.SafetyFilter]: any policy through a control barrier function
   on the task's velocity limits (its force changed as little as possible, only near a limit);
   [`SafeLaw`][vnhc_gym.baselines.SafeLaw] is the law through it.
+* [`ActuatedLaw`][vnhc_gym.baselines.ActuatedLaw]: where the model is wrong in structure, the law
+  on a predictor through the actuator (a bank identifying a delay or a lag online, a Smith
+  predictor) with a disturbance observer; [`InformedActuatedLaw`][vnhc_gym.baselines.InformedActuatedLaw],
+  the same law told the episode's hidden quantities, is a headroom reference.
 * `ZeroPolicy` (no force) and `RandomPolicy` (uniform actions, seeded).
 
 Every policy takes a single, wrapped or vector environment and predicts for one observation
 ``(d,)`` or a batch ``(n, d)``, returning float32 actions in ``[-1, 1]``.
 """
 
+from vnhc_gym.baselines.actuated import ActuatedLaw, InformedActuatedLaw
 from vnhc_gym.baselines.adaptive import AdaptiveController
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
 from vnhc_gym.baselines.kalman import InformedKalmanController, KalmanController
@@ -34,6 +39,7 @@ from vnhc_gym.baselines.policy import Policy, RandomPolicy, ZeroPolicy, task_of
 from vnhc_gym.baselines.safety import SafeLaw, SafetyFilter
 from vnhc_gym.baselines.tuning import CLASSICAL, REFERENCE, make_classical, tune
 
-__all__ = ["AdaptiveController", "CLASSICAL", "DEFAULT_GAIN", "GeometricController", "InformedKalmanController",
-           "KalmanController", "MPCController", "ObserverController", "OracleController", "Policy", "REFERENCE",
-           "RandomPolicy", "SafeLaw", "SafetyFilter", "ZeroPolicy", "make_classical", "task_of", "tune"]
+__all__ = ["ActuatedLaw", "AdaptiveController", "CLASSICAL", "DEFAULT_GAIN", "GeometricController",
+           "InformedActuatedLaw", "InformedKalmanController", "KalmanController", "MPCController",
+           "ObserverController", "OracleController", "Policy", "REFERENCE", "RandomPolicy", "SafeLaw",
+           "SafetyFilter", "ZeroPolicy", "make_classical", "task_of", "tune"]

@@ -49,6 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN
 from vnhc_gym.baselines.observer import ObserverController
+from vnhc_gym.baselines.policy import batch_of
 from vnhc_gym.envs.config import check_number
 from vnhc_gym.mechanics import functional as F
 from vnhc_gym.tasks.base import Task
@@ -357,12 +358,10 @@ class InformedKalmanController(KalmanController):
     """
 
     def __init__(self, env: Any, gain: ArrayLike = DEFAULT_GAIN, q: float = 1.0, variant: str = "plain") -> None:
-        from vnhc_gym.baselines.oracle import _batch_of
-
         # No random walk of the told parameters: their change moves the state exactly (`EKF.update`),
         # where the filter's walk spreads it as variance of the parameters and, with them, of the state.
         super().__init__(env, gain, q=q, q_params=0.0, variant=variant)
-        self.batch = _batch_of(env)
+        self.batch = batch_of(env)
         self.name = "informed_kalman"
 
     def __repr__(self) -> str:

@@ -50,6 +50,19 @@ def checked_task_of(env: Any) -> Any:
     return task
 
 
+def batch_of(env: Any) -> Any:
+    """The `vnhc_gym.envs.runtime.Batch` of a vnhc_gym environment (single, wrapped or vector)."""
+    obj = env
+    for _ in range(64):
+        batch = getattr(obj, "batch", None) or getattr(getattr(obj, "unwrapped", None), "batch", None)
+        if batch is not None and hasattr(batch, "buf"):
+            return batch
+        obj = getattr(obj, "env", None)
+        if obj is None:
+            break
+    raise TypeError(f"{type(env).__name__} is not a vnhc_gym environment: the oracle reads its state")
+
+
 class Policy:
     """A policy with Stable-Baselines3's ``predict`` interface, on one observation or a batch.
 

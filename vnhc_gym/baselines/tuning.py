@@ -29,6 +29,7 @@ from __future__ import annotations
 import itertools
 from typing import Any
 
+from vnhc_gym.baselines.actuated import ActuatedLaw, InformedActuatedLaw
 from vnhc_gym.baselines.adaptive import AdaptiveController
 from vnhc_gym.baselines.geometric import DEFAULT_GAIN, GeometricController
 from vnhc_gym.baselines.kalman import InformedKalmanController, KalmanController
@@ -61,11 +62,18 @@ CLASSICAL: dict[str, tuple[type, dict[str, list[Any]]]] = {
     "kalman": (KalmanController, {"gain": [5.0, 10.0, 20.0, 80.0], "variant": LAW_VARIANTS, "q": [1e-4, 1e-2]}),
     "adaptive": (AdaptiveController, {"gain": [2.0, 5.0, 10.0]}),
     "mpc": (MPCController, {"gain": [2.0, 5.0, 10.0, 20.0], "horizon": [8]}),
+    # Where the model is wrong in structure (skipped elsewhere: `ActuatedLaw.applies`): the law on a
+    # predictor through the actuator that a bank identifies online, told the range's middle instead,
+    # and with a disturbance observer.
+    "actuated_law": (ActuatedLaw, {"gain": [2.0, 5.0, 10.0, 20.0, 40.0], "forget": [0.5, 0.8, 0.95]}),
+    "actuated_nominal": (ActuatedLaw, {"gain": [2.0, 5.0, 10.0, 20.0, 40.0], "bank": ["nominal"]}),
+    "actuated_dob": (ActuatedLaw, {"gain": [5.0, 10.0, 20.0, 40.0], "observer": [0.1, 0.3, 1.0]}),
 }
 #: The headroom reference, in the same form (the gain of exp(-k dt) per control period).
 REFERENCE: dict[str, tuple[type, dict[str, list[Any]]]] = {
     "oracle": (OracleController, {"gain": [2.0, 5.0, 10.0, 20.0, 40.0, 80.0, 160.0]}),
     "informed_kalman": (InformedKalmanController, CLASSICAL["kalman"][1]),
+    "informed_actuated": (InformedActuatedLaw, {"gain": [2.0, 5.0, 10.0, 20.0, 40.0, 80.0]}),
 }
 
 

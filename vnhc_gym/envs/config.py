@@ -15,8 +15,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["EnvConfig", "FLOAT32_MAX", "SCENARIOS", "TaskOptions", "check_choice", "check_integer", "check_number",
-           "check_optional", "configure", "option"]
+__all__ = ["EnvConfig", "FLOAT32_MAX", "MAX_DELAY", "SCENARIOS", "STRUCTURAL", "TaskOptions", "check_choice",
+           "check_flag", "check_integer", "check_number", "check_optional", "configure", "option"]
 
 #: Scenario name -> overrides of [`EnvConfig`][vnhc_gym.envs.EnvConfig] fields (documented in each env's card).
 SCENARIOS: dict[str, dict[str, Any]] = {
@@ -26,7 +26,18 @@ SCENARIOS: dict[str, dict[str, Any]] = {
     "noisy": {"obs_noise": 0.02},
     "coarse": {"dt": 0.1, "substeps": 4},
     "disturbance": {"impulse_prob": 0.05},
+    # The model wrong in structure: each hidden from the controller, drawn per episode and drawn
+    # again once at a random step (identification is never done once and for all).
+    "delay": {"delay_min": 2, "delay_max": 6, "redraw": True},
+    "lag": {"lag_min": 0.1, "lag_max": 0.5, "redraw": True},
+    "unmodelled": {"unmodelled": 1.0, "redraw": True},
 }
+
+#: The scenarios whose model is wrong in structure (an actuator the model lacks, forces it lacks).
+STRUCTURAL = ("delay", "lag", "unmodelled")
+
+#: Largest delay (control periods) an environment holds commands for.
+MAX_DELAY = 100
 
 #: Largest finite float32: observations are float32, so their bound must be below it.
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -66,6 +77,13 @@ def check_number(name: str, value: Any, *, low: float | None = None, high: float
             (high is not None and x > high):
         raise ValueError(f"{name} must be {want}, got {value!r}")
     return x
+
+
+def check_flag(name: str, value: Any) -> bool:
+    """``value`` if it is a bool, else a ``TypeError`` naming ``name``."""
+    if not isinstance(value, bool | np.bool_):
+        raise TypeError(f"{name} must be True or False, got {value!r} of type {type(value).__name__}")
+    return bool(value)
 
 
 def check_integer(name: str, value: Any, *, low: int, high: int | None = None) -> int:
@@ -114,6 +132,19 @@ class EnvConfig:
         Standard deviation of an impulse's velocity change (``None``: the task's default).
     obs_clip : float
         Observations are clipped to ``[-obs_clip, obs_clip]`` (the observation space).
+    delay_min, delay_max : int
+        Each episode the force applied is the one commanded ``d`` control periods earlier, ``d``
+        uniform in ``[delay_min, delay_max]`` (0: none; the commands before the start are 0).
+    lag_min, lag_max : float
+        Each episode the actuator is a first-order lag whose time constant (s) is drawn
+        log-uniformly in ``[lag_min, lag_max]`` (0: none): over a period the force it applies is its
+        state's mean while that state relaxes towards the command (it starts at 0).
+    unmodelled : float
+        Scale of the task's forces that the nominal model lacks (0: none; 1: the coefficients of the
+        task's card, drawn per episode).
+    redraw : bool
+        The hidden quantities (the delay, the time constant, the unmodelled coefficients) are drawn
+        again once, at a step uniform over the middle half of the episode.
     """
 
     dt: float = 0.05
@@ -130,12 +161,28 @@ class EnvConfig:
     impulse_prob: float = 0.0
     impulse_scale: float | None = None
     obs_clip: float = 10.0
+    delay_min: int = 0
+    delay_max: int = 0
+    lag_min: float = 0.0
+    lag_max: float = 0.0
+    unmodelled: float = 0.0
+    redraw: bool = False
+
+    @property
+    def structural(self) -> bool:
+        """Whether the episodes carry hidden structure (a delay, a lag or unmodelled forces)."""
+        return self.delay_max > 0 or self.lag_max > 0 or self.unmodelled > 0
 
     def checked(self) -> EnvConfig:
         """A copy with every field checked and converted (``ValueError``/``TypeError`` naming the
         first bad argument)."""
         if self.reward not in REWARDS:
             raise ValueError(f"reward must be one of {list(REWARDS)}, got {self.reward!r}")
+        delay_min = check_integer("delay_min", self.delay_min, low=0, high=MAX_DELAY)
+        lag_min = check_number("lag_min", self.lag_min, low=0.0, high=1e3)
+        if self.lag_max and not lag_min:
+            raise ValueError(f"lag_min must be > 0 when lag_max is set (the time constant is drawn log-uniformly), "
+                             f"got lag_min={self.lag_min!r}, lag_max={self.lag_max!r}")
         return replace(
             self,
             dt=check_number("dt", self.dt, low=0.0, low_open=True, high=1e6),
@@ -152,6 +199,12 @@ class EnvConfig:
             impulse_prob=check_number("impulse_prob", self.impulse_prob, low=0.0, high=1.0),
             impulse_scale=check_optional("impulse_scale", self.impulse_scale, low=0.0, low_open=True, high=1e6),
             obs_clip=check_number("obs_clip", self.obs_clip, low=0.0, low_open=True, high=FLOAT32_MAX),
+            delay_min=delay_min,
+            delay_max=check_integer("delay_max", self.delay_max, low=delay_min, high=MAX_DELAY),
+            lag_min=lag_min,
+            lag_max=check_number("lag_max", self.lag_max, low=lag_min, high=1e3),
+            unmodelled=check_number("unmodelled", self.unmodelled, low=0.0, high=1e3),
+            redraw=check_flag("redraw", self.redraw),
         )
 
 
@@ -241,7 +294,8 @@ class TaskOptions:
 
 
 def configure(scenario: Any, kwargs: Mapping[str, Any], options: type[_Options],
-              defaults: Mapping[str, Any] | None = None) -> tuple[EnvConfig, _Options]:
+              defaults: Mapping[str, Any] | None = None,
+              magnitudes: Mapping[str, Mapping[str, Any]] | None = None) -> tuple[EnvConfig, _Options]:
     """Split an environment's keyword arguments into a checked [`EnvConfig`][vnhc_gym.envs.EnvConfig] and task options.
 
     Parameters
@@ -255,6 +309,8 @@ def configure(scenario: Any, kwargs: Mapping[str, Any], options: type[_Options],
     defaults : mapping, optional
         The version's defaults of [`EnvConfig`][vnhc_gym.envs.EnvConfig] fields (e.g. the reward of ``-v1``), applied
         before the scenario.
+    magnitudes : mapping, optional
+        The task's own values of a scenario's fields (``Task.scenario_magnitudes``), over ``SCENARIOS``'.
 
     Returns
     -------
@@ -269,5 +325,6 @@ def configure(scenario: Any, kwargs: Mapping[str, Any], options: type[_Options],
         raise ValueError(f"unknown keyword argument(s) {unknown}; valid: "
                          f"{sorted(['scenario', 'render_mode', *CONFIG_FIELDS, *names])}")
     own = {k: v for k, v in kwargs.items() if k in CONFIG_FIELDS}
-    config = replace(EnvConfig(), **{**dict(defaults or {}), **SCENARIOS[scenario], **own}).checked()
+    scenario_fields = {**SCENARIOS[scenario], **dict((magnitudes or {}).get(scenario, {}))}
+    config = replace(EnvConfig(), **{**dict(defaults or {}), **scenario_fields, **own}).checked()
     return config, options(**{k: v for k, v in kwargs.items() if k in names}).checked()

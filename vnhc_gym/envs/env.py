@@ -61,7 +61,8 @@ class ConstraintEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.task_class.check_definition()
-        config, options = configure(scenario, kwargs, self.task_class.Options)
+        config, options = configure(scenario, kwargs, self.task_class.Options,
+                                    magnitudes=self.task_class.scenario_magnitudes)
         self.scenario = scenario
         self.config = config
         self.task = self.task_class(config, options)

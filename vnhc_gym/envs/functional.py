@@ -39,7 +39,7 @@ from gymnasium import spaces
 
 from vnhc_gym.mechanics import functional as core
 
-__all__ = ["EnvParams", "EnvState", "FunctionalEnv", "Step", "TaskFunctions"]
+__all__ = ["Actuator", "EnvParams", "EnvState", "FunctionalEnv", "Step", "TaskFunctions"]
 
 Array = Any  # a jax.Array
 
@@ -81,6 +81,12 @@ class TaskFunctions:
     controller_system : module or None
         The controller's model as printed functions (the environment's own system unless the task's
         controllers run a model of their own), and its ``controller_singular_tol``.
+    unmodelled : callable or None
+        ``unmodelled(s, p, c, args) -> (n,)``: the accelerations of the forces the nominal model lacks,
+        with the episode's coefficients ``c`` (the ``unmodelled`` scenario).
+    unmodelled_ranges : tuple of (float, float)
+        The range each coefficient of ``unmodelled`` is drawn from (uniformly, per episode, then
+        times ``EnvParams.unmodelled_scale``).
     """
 
     name: str
@@ -98,6 +104,8 @@ class TaskFunctions:
     controller_inputs: Callable[..., tuple[Array, Array]] | None = None
     controller_system: ModuleType | None = None
     controller_singular_tol: float | None = None
+    unmodelled: Callable[..., Array] | None = None
+    unmodelled_ranges: tuple[tuple[float, float], ...] = ()
 
 
 class EnvParams(NamedTuple):
@@ -122,7 +130,25 @@ class EnvParams(NamedTuple):
     gains: Array  #: the in-loop law's gains (the feedback modes)
     limit_bounds: Array  #: (L,) the state bounds of ``TaskFunctions.limits``
     args: Any  #: the task's constants
+    delay_range: Array = 0.0  #: (2,) the delay's range (control periods)
+    lag_range: Array = 0.0  #: (2,) the actuator time constant's range (s)
+    unmodelled_scale: Array = 0.0  #: scale of the task's unmodelled forces
+    redraw: Array = 0.0  #: 1: the hidden quantities are drawn again once, mid-episode
     max_steps_in_episode: int = 400
+
+
+class Actuator(NamedTuple):
+    """What an episode whose model is wrong in structure hides from the controller.
+
+    ``hidden`` holds two draws of ``(delay, time constant, unmodelled coefficients...)``: the first
+    is in force before step ``switch_at``, the second from it on (``switch_at`` past the episode's
+    end: one draw all along).
+    """
+
+    queue: Array  #: (Q, m) the commands not yet applied, the newest first (Q: the largest delay)
+    lagged: Array  #: (m,) the actuator's force (its state under a lag)
+    hidden: Array  #: (2, 2 + k) the two draws
+    switch_at: Array  #: the step from which the second draw is in force
 
 
 class EnvState(NamedTuple):
@@ -133,6 +159,7 @@ class EnvState(NamedTuple):
     p_nominal: Array  #: (n_params,) what a controller is told (the task's own random parameters in it)
     obs: Array  #: the last observation (kept when a new one is not finite)
     time: Array  #: steps since the episode's start
+    actuator: Any = None  #: an `Actuator` where the episode hides structure (None: none)
     history: Any = None  #: the observations before ``obs`` that an environment with memory shows (None: none)
 
 
@@ -170,6 +197,11 @@ class FunctionalEnv:
         state) added at every RK4 stage; ``"sampled"``: added once per period and held.  The total
         is clipped to the force bound.
     default_params : EnvParams
+    delay_slots : int
+        Commands held for a delay (the largest delay: an array size, fixed at compile time).
+    structural : bool
+        Whether episodes hide structure (`Actuator`); False leaves the step as the model has it.
+        The in-loop law of the feedback modes acts on the state directly, past the actuator.
     """
 
     task: TaskFunctions
@@ -177,6 +209,8 @@ class FunctionalEnv:
     substeps: int = 1
     reward: str = "bounded"
     feedback: str = "open"
+    delay_slots: int = 0
+    structural: bool = False
 
     def __post_init__(self) -> None:
         if self.reward not in REWARD_SHAPES:
@@ -335,7 +369,55 @@ class FunctionalEnv:
         p = _when(params.param_mismatch > 0, mismatch, lambda k: nominal, k_mismatch)
         s = t.initial(k_state, p, params.args)
         obs = self._observe(k_noise, s, t.system.phi(s, p), nominal, params)
-        return obs, EnvState(s=s, p=p, p_nominal=nominal, obs=obs, time=jnp.zeros((), jnp.int32))
+        # Folded in, not split: the episodes of the other scenarios keep their random numbers.
+        actuator = self._hidden(jax.random.fold_in(key, 1), s.dtype, params) if self.structural else None
+        return obs, EnvState(s=s, p=p, p_nominal=nominal, obs=obs, time=jnp.zeros((), jnp.int32), actuator=actuator)
+
+    @property
+    def queue_length(self) -> int:
+        """Commands an episode holds: the largest delay, and at least one (no empty arrays)."""
+        return max(1, self.delay_slots)
+
+    @property
+    def n_hidden(self) -> int:
+        """Entries of one draw of the hidden quantities: the delay, the time constant, the coefficients."""
+        return 2 + len(self.task.unmodelled_ranges)
+
+    def _hidden(self, key: Array, dtype: Any, params: EnvParams) -> Actuator:
+        """The episode's two draws of its hidden quantities, an empty queue and an actuator at rest."""
+        k_delay, k_lag, k_coef, k_switch = jax.random.split(key, 4)
+        low, high = jnp.asarray(params.delay_range, dtype)[0], jnp.asarray(params.delay_range, dtype)[1]
+        delay = jnp.minimum(jnp.floor(low + (high - low + 1.0) * jax.random.uniform(k_delay, (2,), dtype)), high)
+        lag_low, lag_high = jnp.asarray(params.lag_range, dtype)[0], jnp.asarray(params.lag_range, dtype)[1]
+        log_tau = jax.random.uniform(k_lag, (2,), dtype, jnp.log(jnp.maximum(lag_low, 1e-12)),
+                                     jnp.log(jnp.maximum(lag_high, 1e-12)))
+        tau = jnp.where(lag_high > 0, jnp.exp(log_tau), 0.0)
+        drawn = [delay[:, None], tau[:, None]]
+        if self.task.unmodelled_ranges:  # no empty arrays in a program (XLA's cache has crashed on them)
+            ranges = np.asarray(self.task.unmodelled_ranges, dtype=np.float64)
+            drawn.append(params.unmodelled_scale * (ranges[:, 0] + (ranges[:, 1] - ranges[:, 0])
+                                                    * jax.random.uniform(k_coef, (2, ranges.shape[0]), dtype)))
+        hidden = jnp.concatenate(drawn, axis=1)
+        steps = params.max_steps_in_episode
+        switch = jnp.where(params.redraw > 0, jnp.floor(steps * jax.random.uniform(k_switch, (), dtype, 0.25, 0.75)),
+                           steps + 1.0)
+        m = self.num_actions
+        return Actuator(queue=jnp.zeros((self.queue_length, m), dtype), lagged=jnp.zeros(m, dtype),
+                        hidden=hidden.astype(dtype), switch_at=switch.astype(dtype))
+
+    def hidden_now(self, state: EnvState) -> Array:
+        """The hidden quantities in force at the episode's step ``state.time``: ``(delay, time
+        constant, coefficients...)``."""
+        act = state.actuator
+        return jnp.where(state.time >= act.switch_at, act.hidden[1], act.hidden[0])
+
+    def true_system(self, hidden: Array, params: EnvParams) -> Any:
+        """The episode's true dynamics: the printed system with the unmodelled forces of ``hidden``'s
+        coefficients (the system itself where the task has none)."""
+        t = self.task
+        if not self.structural or t.unmodelled is None:
+            return t.system
+        return core.WithForces(t.system, partial(_unmodelled, t.unmodelled, hidden[2:], params.args))
 
     def transition(self, key: Array, state: EnvState, action: Array, params: EnvParams) -> tuple[EnvState, Step]:
         """One control period of one episode, without the reset (see `step`)."""
@@ -345,7 +427,13 @@ class FunctionalEnv:
         n = system.N
         k_kick, k_noise = jax.random.split(key)
         a = jnp.clip(jnp.asarray(action, dtype=state.s.dtype), -1.0, 1.0)
-        s_next, force = self._advance(state, a * params.force_bound, params)
+        actuator = state.actuator
+        if self.structural:
+            hidden = self.hidden_now(state)
+            force, actuator = actuate(actuator, a * params.force_bound, hidden, params.dt)
+            s_next, force = self._advance(state, force, params, self.true_system(hidden, params))
+        else:
+            s_next, force = self._advance(state, a * params.force_bound, params, system)
 
         def kick(k: Array) -> Array:
             """A velocity impulse with probability impulse_prob, on the entries impulse_mask weights."""
@@ -366,16 +454,16 @@ class FunctionalEnv:
         status = jnp.where(nonfinite, 1, self._status(s, phi, params))
         reward = self._reward(abs_phi, abs_phi_sf, a, nonfinite, params)
         obs = jnp.where(nonfinite, state.obs, obs)
-        new = EnvState(s=s, p=state.p, p_nominal=state.p_nominal, obs=obs, time=state.time + 1)
+        new = EnvState(s=s, p=state.p, p_nominal=state.p_nominal, obs=obs, time=state.time + 1, actuator=actuator)
         return new, Step(obs=obs, reward=reward, terminated=status > 0, status=status, phi=phi, abs_phi=abs_phi,
                          abs_phi_sf=abs_phi_sf, force=force, s_reached=s_next)
 
-    def _advance(self, state: EnvState, force: Array, params: EnvParams) -> tuple[Array, Array]:
-        """RK4 over ``dt`` with the action's force (and the law, in the feedback modes), the total
-        clipped to the force bound; the applied force averaged over the substeps."""
+    def _advance(self, state: EnvState, force: Array, params: EnvParams, system: Any) -> tuple[Array, Array]:
+        """RK4 of ``system`` over ``dt`` with the action's force (and the law, in the feedback modes),
+        the total clipped to the force bound; the applied force averaged over the substeps."""
         bound = params.force_bound
         x, applied, _ = core.rk4_step_controlled(
-            self.task.system, state.s, state.p, force, params.dt, self.substeps, feedback=self.feedback,
+            system, state.s, state.p, force, params.dt, self.substeps, feedback=self.feedback,
             p_law=state.p_nominal, gains=params.gains, lower=-bound, upper=bound)
         return x, applied
 
@@ -414,6 +502,40 @@ class FunctionalEnv:
         x = abs_phi_sf / params.reward_sigma
         r = (jnp.exp(-x) if self.reward == "bounded" else 1.0 / (1.0 + x)) - cost
         return jnp.clip(jnp.where(nonfinite | jnp.isnan(r), 0.0, r), 0.0, 1.0)
+
+
+def actuate(actuator: Actuator, command: Array, hidden: Array, dt: Array) -> tuple[Array, Actuator]:
+    """The force an actuator applies over one period, and its memory after it.
+
+    The command joins the queue; the one commanded ``d = hidden[0]`` periods ago (0 before the start)
+    drives the lag of time constant ``hidden[1]`` (`lag`).
+    """
+    full = jnp.concatenate([command[None], actuator.queue])
+    delayed = full[jnp.clip(hidden[0], 0, full.shape[0] - 1).astype(jnp.int32)]
+    mean, lagged = lag(actuator.lagged, delayed, hidden[1], dt)
+    return mean, actuator._replace(queue=full[:-1], lagged=lagged)
+
+
+def lag(z: Array, command: Array, tau: Array, dt: Array) -> tuple[Array, Array]:
+    """A first-order actuator over one period: ``(mean force, force at the end)``.
+
+    Its force ``z`` relaxes towards the held command as ``exp(-t / tau)``; the period's force is
+    ``z``'s mean over the period, ``w z + (1 - w) command`` with ``w = tau / dt (1 - exp(-dt /
+    tau))``.  ``tau = 0``: no lag (the command itself).
+    """
+    w, decay = lag_weights(tau, dt)
+    return w * z + (1.0 - w) * command, command + (z - command) * decay
+
+
+def lag_weights(tau: Array, dt: Array) -> tuple[Array, Array]:
+    """``(w, exp(-dt / tau))`` of `lag` (both 0 for ``tau = 0``)."""
+    lagging = tau > 0
+    ratio = dt / jnp.where(lagging, tau, 1.0)
+    return jnp.where(lagging, -jnp.expm1(-ratio) / ratio, 0.0), jnp.where(lagging, jnp.exp(-ratio), 0.0)
+
+
+def _unmodelled(fn: Callable[..., Array], coef: Array, args: Any, s: Array, p: Array) -> Array:
+    return fn(s, p, coef, args)
 
 
 def _put_rows(rows: Array, dest: Array, values: Array) -> Array:

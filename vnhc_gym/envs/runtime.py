@@ -24,7 +24,7 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 from numpy.typing import NDArray
 
-from vnhc_gym.envs.functional import FEEDBACK, EnvParams, EnvState, FunctionalEnv
+from vnhc_gym.envs.functional import FEEDBACK, Actuator, EnvParams, EnvState, FunctionalEnv
 
 if TYPE_CHECKING:
     from vnhc_gym.tasks.base import Task
@@ -37,7 +37,7 @@ STATUS_NONFINITE = 1  #: the state (or phi, or the observation) was not finite: 
 #: (``n2`` state entries, ``P`` parameters, ``d`` observation entries, ``m`` controls).
 _FIELDS = (("state", "n2"), ("params_true", "P"), ("params_nominal", "P"), ("obs", "d"), ("steps", 1),
            ("reward", 1), ("status", 1), ("phi", "m"), ("abs_phi", 1), ("abs_phi_sf", 1), ("force_applied", "m"),
-           ("next_state", "n2"))
+           ("next_state", "n2"), ("queue", "Qm"), ("lagged", "A"), ("hidden", "H"), ("switch_at", "S"))
 
 
 class Buffers(NamedTuple):
@@ -57,6 +57,10 @@ class Buffers(NamedTuple):
     abs_phi_sf: NDArray[np.float64]  #: (B,) mean_b |phi~^b|
     status: NDArray[np.int64]  #: (B,) 0, `STATUS_NONFINITE`, or 1 + the index of a task's reason
     steps: NDArray[np.int64]  #: (B,) steps since the episode's start
+    queue: NDArray[np.float64]  #: (B, Q m) the commands not yet applied, newest first (a delay)
+    lagged: NDArray[np.float64]  #: (B, m) the actuator's force (a lag); empty columns without hidden structure
+    hidden: NDArray[np.float64]  #: (B, 2 H) the two draws of the hidden quantities (`EnvState.actuator`)
+    switch_at: NDArray[np.float64]  #: (B, 1) the step from which the second draw is in force
 
 
 def seed_keys(seeds: list[int]) -> NDArray[np.uint32]:
@@ -90,8 +94,9 @@ def _program(env: FunctionalEnv, params: EnvParams, widths: dict[str, int]) -> _
     """
     t = env.task
     leaves, treedef = jax.tree.flatten(params)
-    functions = tuple(_identity(f) for f in (t.initial, t.observation, t.terminations, t.task_params, t.scale_free))
-    key = (functions, t.system, t.reasons,
+    functions = tuple(function_identity(f) for f in (t.initial, t.observation, t.terminations, t.task_params,
+                                                     t.scale_free, t.unmodelled))
+    key = (functions, t.system, t.reasons, t.unmodelled_ranges, env.delay_slots, env.structural,
            t.limits, t.impulse_mask, t.uncertain, t.obs_dim, env.substeps, env.reward, env.feedback, treedef,
            tuple((np.shape(x), np.result_type(x).str) for x in leaves), params.max_steps_in_episode)
     program = _PROGRAMS.get(key)
@@ -103,9 +108,21 @@ def _program(env: FunctionalEnv, params: EnvParams, widths: dict[str, int]) -> _
     offsets = np.cumsum([0] + list(widths.values()))
     where = {name: slice(int(offsets[i]), int(offsets[i + 1])) for i, name in enumerate(widths)}
 
+    m = env.num_actions
+
     def unpack(row: jax.Array) -> EnvState:
+        actuator = None
+        if env.structural:
+            actuator = Actuator(queue=row[where["queue"]].reshape(env.queue_length, m), lagged=row[where["lagged"]],
+                                hidden=row[where["hidden"]].reshape(2, env.n_hidden),
+                                switch_at=row[where["switch_at"]][0])
         return EnvState(s=row[where["state"]], p=row[where["params_true"]], p_nominal=row[where["params_nominal"]],
-                        obs=row[where["obs"]], time=row[where["steps"]][0].astype(jnp.int32))
+                        obs=row[where["obs"]], time=row[where["steps"]][0].astype(jnp.int32), actuator=actuator)
+
+    def pack(actuator: Actuator | None) -> list[jax.Array]:
+        if actuator is None:
+            return []
+        return [actuator.queue.reshape(-1), actuator.lagged, actuator.hidden.reshape(-1), actuator.switch_at[None]]
 
     def reset_row(key: jax.Array, p: EnvParams) -> tuple[jax.Array, jax.Array]:
         key, k_reset = jax.random.split(key)
@@ -114,7 +131,7 @@ def _program(env: FunctionalEnv, params: EnvParams, widths: dict[str, int]) -> _
         abs_phi_sf = jnp.mean(jnp.abs(env._scale_free(st.s, phi, p)))
         zero_m = jnp.zeros_like(phi)
         row = jnp.concatenate([st.s, st.p, st.p_nominal, obs, jnp.zeros(3), phi, jnp.mean(jnp.abs(phi))[None],
-                               abs_phi_sf[None], zero_m, st.s])
+                               abs_phi_sf[None], zero_m, st.s, *pack(st.actuator)])
         return row, key
 
     def step_row(key: jax.Array, row: jax.Array, action: jax.Array, p: EnvParams) -> tuple[jax.Array, jax.Array]:
@@ -122,7 +139,7 @@ def _program(env: FunctionalEnv, params: EnvParams, widths: dict[str, int]) -> _
         new, out = env.transition(k_step, unpack(row), action, p)
         row = jnp.concatenate([new.s, new.p, new.p_nominal, new.obs, new.time.astype(row.dtype)[None],
                                out.reward[None], out.status.astype(row.dtype)[None], out.phi, out.abs_phi[None],
-                               out.abs_phi_sf[None], out.force, out.s_reached])
+                               out.abs_phi_sf[None], out.force, out.s_reached, *pack(new.actuator)])
         return row, key
 
     @jax.jit
@@ -159,7 +176,7 @@ def _program(env: FunctionalEnv, params: EnvParams, widths: dict[str, int]) -> _
     return program
 
 
-def _identity(fn: Any) -> Any:
+def function_identity(fn: Any) -> Any:
     """What a task function's code is: the function, or a ``partial``'s function and keywords (a new
     ``partial`` of the same function and system is the same code)."""
     if isinstance(fn, partial):
@@ -198,9 +215,13 @@ class Batch:
         self.task = task
         self.n = int(n)
         model = task.model
+        hides = task.config.structural  # the columns of the hidden structure are empty without it
         self._widths = {name: (size if isinstance(size, int) else
                                {"n2": 2 * model.n, "P": len(model.param_names), "d": int(task.obs_dim),
-                                "m": model.m}[size]) for name, size in _FIELDS}
+                                "m": model.m, "Qm": max(1, task.config.delay_max) * model.m * hides,
+                                "A": model.m * hides, "H": 2 * (2 + len(task.unmodelled_ranges)) * hides,
+                                "S": int(hides)}[size])
+                        for name, size in _FIELDS}
         # Rows are padded to a multiple of _LANES: XLA vectorises the loop over rows and computes
         # the rows left over past a multiple of the vector width with scalar code, whose results
         # differ in the last bit for some functions (the boat's); padded, every episode's row is
@@ -314,9 +335,25 @@ class Batch:
                        params_nominal=c("params_nominal"), force_applied=c("force_applied"), phi=c("phi"),
                        obs=c("obs"), obs32=c("obs").astype(np.float32), reward=c("reward")[:, 0],
                        abs_phi=c("abs_phi")[:, 0], abs_phi_sf=c("abs_phi_sf")[:, 0],
-                       status=c("status")[:, 0].astype(np.int64), steps=c("steps")[:, 0].astype(np.int64))
+                       status=c("status")[:, 0].astype(np.int64), steps=c("steps")[:, 0].astype(np.int64),
+                       queue=c("queue"), lagged=c("lagged"), hidden=c("hidden"), switch_at=c("switch_at"))
 
     # ------------------------------------------------------------------ infos
+    @property
+    def hides(self) -> bool:
+        """Whether the episodes hide structure (a delay, a lag, unmodelled forces) from the controller."""
+        return bool(self.task.config.structural)
+
+    def hidden_now(self, rows: NDArray[np.intp]) -> dict[str, NDArray[np.float64]]:
+        """The hidden quantities in force for the next step of ``rows``: ``delay_steps``,
+        ``lag_time_constant`` (s; 0: none) and ``unmodelled_coefficients`` (the task's card names them)."""
+        buf = self.buf
+        draws = buf.hidden[rows].reshape(len(rows), 2, -1)
+        later = buf.steps[rows] >= buf.switch_at[rows, 0]
+        now = np.where(later[:, None], draws[:, 1], draws[:, 0])
+        return {"delay_steps": now[:, 0].astype(np.int64), "lag_time_constant": now[:, 1],
+                "unmodelled_coefficients": now[:, 2:].copy()}
+
     def info(self, r: int, reset: bool = False) -> dict[str, Any]:
         """The documented ``info`` of row ``r`` (fresh copies); ``reset`` adds the episode's true
         parameters ``params`` (constant over an episode, so not repeated at every step)."""
@@ -332,6 +369,10 @@ class Batch:
         }
         if reset:
             info["params"] = buf.params_true[r].copy()
+        if self.hides:
+            now = self.hidden_now(np.array([r]))
+            info.update(delay_steps=int(now["delay_steps"][0]), lag_time_constant=float(now["lag_time_constant"][0]),
+                        unmodelled_coefficients=now["unmodelled_coefficients"][0])
         if status:
             info["termination_reason"] = self._reasons[status]
         return info
@@ -347,6 +388,8 @@ class Batch:
         state = np.where(nonfinite[:, None], buf.next_state, buf.state)
         values = {"phi": buf.phi.copy(), "abs_phi": buf.abs_phi.copy(), "abs_phi_sf": buf.abs_phi_sf.copy(),
                   "state": state, "force": buf.force_applied.copy(), "time": buf.steps * self.dt}
+        if self.hides:
+            values.update(self.hidden_now(np.arange(n)))
         infos: dict[str, Any] = {}
         for key, value in values.items():
             if rows is not None:

@@ -18,7 +18,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-__all__ = ["FEEDBACK_MODES", "acceleration", "checked_law", "law", "measure", "rk4_step", "rk4_step_controlled",
+__all__ = ["FEEDBACK_MODES", "WithForces", "acceleration", "checked_law", "law", "measure", "rk4_step",
+           "rk4_step_controlled",
            "sampled_law", "transversality", "vector_field"]
 
 #: How the law enters a step (`rk4_step_controlled`): not at all, held over the period, or at every stage.
@@ -27,6 +28,26 @@ FEEDBACK_MODES = ("open", "continuous", "sampled")
 Array = Any  # a jax.Array (or anything jax.numpy accepts)
 
 _MAX_UNROLL = 8  #: RK4 loops up to this many substeps are unrolled
+
+
+class WithForces:
+    """A printed system with forces its model lacks: ``drift`` adds ``extra(s, p)``, the accelerations
+    they cause; every other function (``phi``, ``C``, ``G``, ...) is the system's own.
+
+    It stands where a printed module does (RK4, `sampled_law`): what the truth integrates, and what a
+    reference that knows the truth plans with.
+    """
+
+    def __init__(self, system: ModuleType | WithForces, extra: Any) -> None:
+        self._system = system
+        self._extra = extra
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._system, name)
+
+    def drift(self, s: Array, p: Array) -> Array:
+        """The system's drift plus the extra accelerations."""
+        return self._system.drift(s, p) + self._extra(s, p)
 
 
 def acceleration(system: ModuleType, s: Array, p: Array, u: Array) -> Array:
@@ -170,7 +191,7 @@ def rk4_step_controlled(system: ModuleType, s: Array, p: Array, u: Array, dt: fl
 
 def sampled_law(system: ModuleType, s: Array, p: Array, dt: float, gains: Array, substeps: int = 1,
                 iters: int = 4, *, phi_now: Array | None = None, xtol: float = 1e-10,
-                singular_tol: float | None = None) -> tuple[Array, Array]:
+                singular_tol: float | None = None, bias: Array | None = None) -> tuple[Array, Array]:
     """The held control ``u`` with ``phi(F_dt(s, u)) = exp(-K dt) phi(s)``: the exact discretisation of
     the continuous closed loop for a zero-order hold (velocity constraints).  ``(u, converged)``.
 
@@ -181,7 +202,9 @@ def sampled_law(system: ModuleType, s: Array, p: Array, dt: float, gains: Array,
     phi_now``, so a bias between the model's ``phi(s)`` and the measurement cancels.  Newton stops
     when the residual is exactly 0 or a step is at most ``xtol * max(1, |u|)`` in every entry
     (``converged``); a step that would leave the finite numbers, or a non-finite end state, keeps
-    the last iterate (``converged`` False), as does running out of ``iters`` steps.
+    the last iterate (``converged`` False), as does running out of ``iters`` steps.  ``bias`` is a
+    rate of ``phi`` the model lacks (a disturbance observer's estimate), held over the period: the
+    target becomes ``phi(F_dt(s, u)) + bias dt = exp(-K dt) phi(s)``.
     """
     if system.HOLONOMIC:
         raise ValueError("sampled_law supports velocity constraints only")
@@ -189,6 +212,8 @@ def sampled_law(system: ModuleType, s: Array, p: Array, dt: float, gains: Array,
     k = jnp.broadcast_to(jnp.asarray(gains, dtype=s.dtype), (m,))
     phi0 = system.phi(s, p)
     offset = phi0 + jnp.expm1(-k * dt) * (phi0 if phi_now is None else phi_now)
+    if bias is not None:
+        offset = offset - bias * dt
 
     def residual(u: Array) -> tuple[Array, tuple[Array, Array]]:
         # Not unrolled: differentiated, the written-out substeps of a large system (the boat in a

@@ -17,10 +17,11 @@ from vnhc_gym.wrappers.residual_jax import BASES as COMPILED_BASES
 LEARNED_ALGOS = ("ppo", "residual_ppo", "ppo_history", "sac", "residual_sac")
 #: Learned agents that correct a classical base (the cell's best classical baseline).
 RESIDUAL_ALGOS = ("residual_ppo", "residual_sac")
-CLASSICAL_ALGOS = ("law", "tuned_law", "safe_law", "observer", "kalman", "adaptive", "mpc")
+CLASSICAL_ALGOS = ("law", "tuned_law", "safe_law", "observer", "kalman", "adaptive", "mpc", "actuated_law",
+                   "actuated_nominal", "actuated_dob")
 #: Classical baselines that plan (model-predictive control): fielded as they are, never a residual base.
 PLANNING_ALGOS = ("mpc",)
-REFERENCE_ALGOS = ("oracle", "informed_kalman")
+REFERENCE_ALGOS = ("oracle", "informed_kalman", "informed_actuated")
 ALL_ALGOS = LEARNED_ALGOS + CLASSICAL_ALGOS + REFERENCE_ALGOS
 #: Where a learned run trains: Stable-Baselines3 (and SBX), or compiled with its environment
 #: (`vnhc_gym.training.run_jax`: PPO, SAC, their residual variants, PPO with history).  Classical runs

@@ -167,7 +167,9 @@ def _write_headline(rows: list[dict[str, Any]], dest: Path) -> list[dict[str, An
         # best test score would bias its probability of improvement upwards.
         top = max(learned, key=lambda r: r["validation_score"]) if learned else None
         winner, words = verdict(top, best)
-        why = _why(winner, oracle, best, top, learned, env, scenario, cell.get("informed_kalman"))
+        # The reference told what the cell hides: the actuator's structure where it hides one.
+        informed = cell.get("informed_actuated") or cell.get("informed_kalman")
+        why = _why(winner, oracle, best, top, learned, env, scenario, informed)
         verdicts.append({"env": env, "scenario": scenario, "verdict": words, "winner": winner, "why": why,
                          "best_classical": best["algo"] if best else None, "best_learned": top["algo"] if top else None,
                          "poi_low": top.get("poi_low") if top else None,
@@ -204,6 +206,9 @@ HEADROOM_KIND = {
     "coarse": "the control period: the oracle's law is exact for the environment's own step",
     "disturbance": "kicks no controller foresees: the oracle acts on the kicked state at once",
     "nominal": "the law on the true state (the oracle's sampled-data law is exact for the step)",
+    "delay": "the hidden delay: the oracle predicts through the commands still on their way",
+    "lag": "the hidden actuator: the oracle knows its time constant and its force",
+    "unmodelled": "forces the model lacks: the oracle plans with them",
 }
 
 

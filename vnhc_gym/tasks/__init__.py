@@ -176,5 +176,6 @@ def make_jax(env_id: str, scenario: str = "nominal", *, feedback: str = "open", 
     version = env_id.rsplit("-", 1)[-1] if "-v" in env_id else "v1"
     task_class = entry.task_class
     task_class.check_definition()
-    config, options = configure(scenario, {**VERSIONS.get(version, {}), **kwargs}, task_class.Options)
+    config, options = configure(scenario, {**VERSIONS.get(version, {}), **kwargs}, task_class.Options,
+                                magnitudes=task_class.scenario_magnitudes)
     return task_class(config, options).functional(feedback=feedback, gains=gains, max_steps=max_steps)

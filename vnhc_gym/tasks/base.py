@@ -58,6 +58,14 @@ def _batched(fn: Any, states: Array, params: Array, args: Any) -> Any:
         out = batched(np.asarray(states, dtype=np.float64), np.asarray(params, dtype=np.float64), args)
     return jax.tree.map(lambda a: np.array(a, dtype=np.float64), out)
 
+def bound_fn(module: Any, name: str, system: Any) -> Any:
+    """A task module's function ``name`` (or None), given the printed system if it asks for it."""
+    fn = getattr(module, name, None)
+    if fn is not None and "system" in inspect.signature(fn).parameters:
+        fn = partial(fn, system=system)
+    return fn
+
+
 class Task:
     """A virtual-constraint task configured for one environment (subclass once per task).
 
@@ -101,6 +109,13 @@ class Task:
         Observation entries that a filter's measurement model leaves out (NaN in
         [`observation_of`][vnhc_gym.tasks.base.Task.observation_of]): the boat's position, which
         the frame centred on the boat does not hold.
+    scenario_magnitudes : dict of str to dict
+        The task's own values of a scenario's fields where ``SCENARIOS``' do not suit it (a shorter
+        delay for a pole that falls in a fraction of a second), by scenario; its card states them.
+    unmodelled_ranges : dict of str to (float, float)
+        The coefficients of the module's ``unmodelled(s, p, c, args)`` (the accelerations of forces
+        the nominal model lacks, for the ``unmodelled`` scenario), by name, in order, with the range
+        each is drawn from per episode.
 
     Notes
     -----
@@ -133,6 +148,8 @@ class Task:
     uncertain: ClassVar[tuple[str, ...]] = ()
     filtered_params: ClassVar[tuple[str, ...]] = ()
     unmeasured: ClassVar[tuple[int, ...]] = ()
+    unmodelled_ranges: ClassVar[dict[str, tuple[float, float]]] = {}
+    scenario_magnitudes: ClassVar[dict[str, dict[str, Any]]] = {}
 
     config: EnvConfig
     options: TaskOptions
@@ -216,6 +233,9 @@ class Task:
             checks.append(("task_params", fns.task_params, (key, p, args), (n_params,), "the system's parameters"))
         if fns.scale_free is not None:
             checks.append(("scale_free", fns.scale_free, (s, phi, args), (m,), "one per control"))
+        if fns.unmodelled is not None:
+            c = jax.ShapeDtypeStruct((len(fns.unmodelled_ranges),), np.float32)
+            checks.append(("unmodelled", fns.unmodelled, (s, p, c, args), (model.n,), "the velocity's n entries"))
         chart = getattr(sys.modules[type(self).__module__], "controller_inputs", None)
         if callable(chart):
             ctrl = self.controller_model()
@@ -275,14 +295,18 @@ class Task:
         system = self.jax_system()
         c = self.config
         names = self.model.param_names
+        ranges = tuple((float(lo), float(hi)) for lo, hi in self.unmodelled_ranges.values())
+        unmodelled = bound_fn(module, "unmodelled", system)
+        if (unmodelled is None) != (not ranges):
+            raise ValueError(f"{where}: unmodelled_ranges and the module's unmodelled function go together, got "
+                             f"{len(ranges)} coefficient(s) and {'a' if unmodelled else 'no'} function")
+        if c.unmodelled > 0 and unmodelled is None:
+            raise ValueError(f"{where}: unmodelled={c.unmodelled:g}, but the task declares no unmodelled forces "
+                             f"(define unmodelled(s, p, c, args) and unmodelled_ranges)")
         n_gains = 2 * system.M if system.HOLONOMIC else system.M
         k = np.broadcast_to(np.asarray(gains, dtype=np.float64), (n_gains,))
         def bound(name: str) -> Any:
-            """The module's function ``name`` (or None), given the printed system if it asks for it."""
-            fn = getattr(module, name, None)
-            if fn is not None and "system" in inspect.signature(fn).parameters:
-                fn = partial(fn, system=system)
-            return fn
+            return bound_fn(module, name, system)
 
         ctrl = self.controller_model()
         fns = TaskFunctions(
@@ -294,7 +318,8 @@ class Task:
             reasons=tuple(str(r) for r in self.all_reasons[1:]),
             limits=tuple((r, int(i)) for r, i, _ in self.limits),
             impulse_mask=tuple(float(w) for w in self.impulse_mask),
-            uncertain=tuple(n in self.uncertain for n in names), obs_dim=int(self.obs_dim))
+            uncertain=tuple(n in self.uncertain for n in names), obs_dim=int(self.obs_dim),
+            unmodelled=unmodelled, unmodelled_ranges=ranges)
 
         def f(x: Any) -> Any:
             return np.asarray(x, dtype=np.float64)  # float64: JAX casts it to its own precision at a call
@@ -306,9 +331,10 @@ class Task:
             reward_sigma=f(self.reward_sigma if c.reward_sigma is None else c.reward_sigma),
             phi_scale=f(c.phi_scale), phi_sf_scale=f(float(self.phi_sf_scale)), action_cost=f(c.action_cost),
             reward_clip=f(c.reward_clip), gains=f(k), limit_bounds=f(np.array([b for _, _, b in self.limits])),
-            args=self.args, max_steps_in_episode=int(max_steps))
+            args=self.args, delay_range=f([c.delay_min, c.delay_max]), lag_range=f([c.lag_min, c.lag_max]),
+            unmodelled_scale=f(c.unmodelled), redraw=f(float(c.redraw)), max_steps_in_episode=int(max_steps))
         env = FunctionalEnv(task=fns, default_params=params, substeps=int(c.substeps), reward=c.reward,
-                            feedback=feedback)
+                            feedback=feedback, delay_slots=int(c.delay_max), structural=c.structural)
         return env, params
 
     def jax_system(self) -> Any:

@@ -146,6 +146,19 @@ def controller_inputs(obs: jax.Array, p: jax.Array, args: Args) -> tuple[jax.Arr
     return s.at[3 * n - 1].set(speed * obs[2 * nf]).at[4 * n - 1].set(speed * obs[2 * nf + 1]), p
 
 
+def unmodelled(s: jax.Array, p: jax.Array, c: jax.Array, args: Args) -> jax.Array:
+    """Quadratic air drag on the followers, which the model's vacuum lacks: ``-c_0 |v_b| v_b`` on
+    follower ``b`` (the leader falls free)."""
+    n = s.shape[0] // 4
+    vx, vz = s[2 * n:3 * n], s[3 * n:]
+    speed = jnp.hypot(vx, vz)
+    follower = jnp.arange(n) < n - 1
+    mass = p[:n]
+    ax = jnp.where(follower, -c[0] * speed * vx / mass, 0.0)
+    az = jnp.where(follower, -c[0] * speed * vz / mass, 0.0)
+    return jnp.concatenate([ax, az])
+
+
 @dataclass(frozen=True)
 class FlockingOptions(TaskOptions):
     """The flock's own keyword arguments."""
@@ -158,6 +171,8 @@ class FlockingOptions(TaskOptions):
 
 
 class FlockingTask(Task):
+    #: Quadratic drag coefficient of every follower (N s^2/m^2).
+    unmodelled_ranges = {"drag": (0.05, 0.3)}
     """Followers align their velocities with a free-falling leader (see
     [`FlockingAlignEnv`][vnhc_gym.tasks.flocking.FlockingAlignEnv])."""
 
@@ -304,7 +319,19 @@ class FlockingAlignEnv(ConstraintEnv):
     | coarse        | ``dt=0.1, substeps=4``                                                    |
     | disturbance   | ``impulse_prob=0.05``: random 1 m/s velocity kicks                        |
 
+    ``delay``, ``lag`` and ``unmodelled`` make the model wrong in structure. Each hides its
+    quantities from the controller (never in the observation; in ``info``), draws them per
+    episode, and draws them again once, at a step uniform in 100-300 (``redraw``): ``delay``: the
+    force applied is the one commanded 2-6 steps (0.1-0.3 s) earlier (``delay_min``,
+    ``delay_max``); ``lag``: a first-order actuator, its time constant log-uniform in 0.1-0.5 s
+    (``lag_min``, ``lag_max``; the period's force is the actuator's mean over it); ``unmodelled``
+    (``unmodelled=1``): quadratic air drag ``-c |v_b| v_b`` on every follower, ``c`` in ``U(0.05, 0.3)``
+    N s^2/m^2 (the leader falls free): the model's particles move in a vacuum.
+
     Explicit keyword arguments override a scenario's values.
+
+    ``delay_min``, ``delay_max``, ``lag_min``, ``lag_max`` (0), ``unmodelled`` (0) and ``redraw`` (False)
+    set the hidden structure, as for every task.
 
     ## Info
 
@@ -312,6 +339,9 @@ class FlockingAlignEnv(ConstraintEnv):
     ``(x.., z.., xd.., zd..)``), ``force`` (applied force, N), ``time`` (s); plus
     ``termination_reason`` when terminated. The info of ``reset`` also holds ``params`` (the
     episode's true masses and g).
+    Where the episode hides structure (``delay``, ``lag``, ``unmodelled``): ``delay_steps``,
+    ``lag_time_constant`` (s) and ``unmodelled_coefficients``
+    (``drag``), in force for the next step.
 
     ## Version History
 

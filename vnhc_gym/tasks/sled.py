@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import ModuleType
 from typing import NamedTuple
 
 import jax
@@ -22,6 +23,7 @@ __all__ = ["SledCruiseEnv", "SledCruiseTask", "SledOptions"]
 
 OBS_VEL_SCALE = 2.0  #: m/s: velocities are divided by this in the observation
 OBS_RATE_SCALE = 2.0  #: rad/s: the turn rate is divided by this
+GRAVITY = 9.81  #: m/s^2: the blade's weight on the ice (friction)
 
 
 class Args(NamedTuple):
@@ -72,6 +74,16 @@ def recenter(s: jax.Array, p: jax.Array, args: Args) -> tuple[jax.Array, jax.Arr
     return jnp.stack([zero, zero, zero, c * s[3] + sn * s[4], -sn * s[3] + c * s[4], s[5]]), p
 
 
+def unmodelled(s: jax.Array, p: jax.Array, c: jax.Array, args: Args, *, system: ModuleType) -> jax.Array:
+    """Coulomb friction of the blade on the ice, which the model's frictionless ice lacks: a force
+    ``-c_0 m g sgn(v_f)`` against the forward speed, along the thrust's line, and a torque
+    ``-c_1 sgn(thetad)`` against the turn (signs smoothed over 0.05 m/s and 0.05 rad/s)."""
+    c_, sn = jnp.cos(s[2]), jnp.sin(s[2])
+    forward = c_ * s[3] + sn * s[4]
+    force = jnp.stack([-c[0] * p[0] * GRAVITY * jnp.tanh(forward / 0.05), -c[1] * jnp.tanh(s[5] / 0.05)])
+    return jnp.sum(system.input_fields(s, p) * force, axis=-1)
+
+
 @dataclass(frozen=True)
 class SledOptions(TaskOptions):
     """The sled's own keyword arguments."""
@@ -101,6 +113,8 @@ class SledCruiseTask(Task):
     phi_sf_scale = 1.0
     angles = (2,)
     uncertain = ("m", "I", "a")
+    #: Coulomb friction: the blade's coefficient along the heading and the turning torque (N m).
+    unmodelled_ranges = {"friction": (0.05, 0.3), "turn_friction_torque": (0.5, 4.0)}
 
     def __init__(self, config: EnvConfig, options: SledOptions) -> None:
         super().__init__(config, options)
@@ -187,7 +201,8 @@ class SledCruiseEnv(ConstraintEnv):
     | ``impulse_scale`` | 0.3       | std (m/s) of a velocity kick                   |
 
     ``dt``, ``substeps``, ``reward``, ``phi_scale``, ``reward_clip``, ``action_cost``,
-    ``param_mismatch``, ``obs_noise``, ``impulse_prob`` and ``obs_clip`` are as for every task.
+    ``param_mismatch``, ``obs_noise``, ``impulse_prob``, ``obs_clip``, ``delay_min``, ``delay_max``,
+    ``lag_min``, ``lag_max``, ``unmodelled`` and ``redraw`` are as for every task.
     | ``render_mode``   | None      | ``"rgb_array"`` or ``"human"``                 |
 
     ## Scenarios
@@ -196,11 +211,24 @@ class SledCruiseEnv(ConstraintEnv):
     ``U(0.7, 1.3)``); ``noisy`` (observation noise 0.02); ``coarse`` (``dt = 0.1``, 4 substeps);
     ``disturbance`` (0.3 m/s velocity kicks with probability 0.05 per step).
 
+    ``delay``, ``lag`` and ``unmodelled`` make the model wrong in structure. Each hides its
+    quantities from the controller (never in the observation; in ``info``), draws them per
+    episode, and draws them again once, at a step uniform in 100-300 (``redraw``): ``delay``: the
+    force applied is the one commanded 2-6 steps (0.1-0.3 s) earlier (``delay_min``,
+    ``delay_max``); ``lag``: a first-order actuator, its time constant log-uniform in 0.1-0.5 s
+    (``lag_min``, ``lag_max``; the period's force is the actuator's mean over it); ``unmodelled``
+    (``unmodelled=1``): Coulomb friction of the blade, which the model's frictionless ice lacks: a force
+    ``-mu m g sgn(v_f)`` along the heading, ``mu`` in ``U(0.05, 0.3)``, and a torque
+    ``-c sgn(thetad)`` against the turn, ``c`` in ``U(0.5, 4)`` N m.
+
     ## Info
 
     ``phi`` (``(2,)``, m/s), ``abs_phi``, ``abs_phi_sf``, ``state`` (``x, y, theta, xd, yd,
     thetad``), ``force`` (N, N m), ``time``; ``params`` at reset (``m, I, a, v_ref``);
     ``termination_reason`` when terminated.
+    Where the episode hides structure (``delay``, ``lag``, ``unmodelled``): ``delay_steps``,
+    ``lag_time_constant`` (s) and ``unmodelled_coefficients``
+    (``friction``, ``turn_friction_torque``), in force for the next step.
 
     ## Version History
 

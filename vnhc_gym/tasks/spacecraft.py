@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import ModuleType
 from typing import NamedTuple
 
 import jax
@@ -77,6 +78,14 @@ def controller_inputs(obs: jax.Array, p: jax.Array, args: Args) -> tuple[jax.Arr
     return jnp.stack([jnp.zeros_like(th), th, ph, psid, cp * w[1] - sp * w[2], w[0] + st * psid]), p
 
 
+def unmodelled(s: jax.Array, p: jax.Array, c: jax.Array, args: Args, *, system: ModuleType) -> jax.Array:
+    """A rate-dependent torque the rigid-body model lacks: the gyroscopic torque ``-omega x h`` of a
+    rotor spinning inside the body with momentum ``h = c`` (N m s, body axes), a wheel the model
+    does not know of."""
+    torque = -jnp.cross(_rates(s), c)
+    return jnp.sum(system.input_fields(s, p) * torque, axis=-1)
+
+
 @dataclass(frozen=True)
 class SpacecraftOptions(TaskOptions):
     """The spacecraft's own keyword arguments."""
@@ -116,6 +125,9 @@ class SpacecraftTask(Task):
     phi_units = "rad/s"
     angles = (0, 1, 2)
     uncertain = ("J1", "J2", "J3")
+    #: The rotor's momentum in body axes (N m s).
+    unmodelled_ranges = {"rotor_momentum_1": (-2.0, 2.0), "rotor_momentum_2": (-2.0, 2.0),
+                         "rotor_momentum_3": (-2.0, 2.0)}
 
     def __init__(self, config: EnvConfig, options: SpacecraftOptions) -> None:
         super().__init__(config, options)
@@ -213,7 +225,8 @@ class SpacecraftPointEnv(ConstraintEnv):
     | ``render_mode``   | None      | ``"rgb_array"`` or ``"human"``                     |
 
     ``dt``, ``substeps``, ``reward``, ``phi_scale``, ``reward_clip``, ``action_cost``,
-    ``param_mismatch``, ``obs_noise``, ``impulse_prob`` and ``obs_clip`` are as for every task.
+    ``param_mismatch``, ``obs_noise``, ``impulse_prob``, ``obs_clip``, ``delay_min``, ``delay_max``,
+    ``lag_min``, ``lag_max``, ``unmodelled`` and ``redraw`` are as for every task.
 
     ## Scenarios
 
@@ -221,11 +234,23 @@ class SpacecraftPointEnv(ConstraintEnv):
     1.3)``); ``noisy`` (observation noise 0.02); ``coarse`` (``dt = 0.1``, 4 substeps);
     ``disturbance`` (0.3 rad/s kicks to the angle rates with probability 0.05 per step).
 
+    ``delay``, ``lag`` and ``unmodelled`` make the model wrong in structure. Each hides its
+    quantities from the controller (never in the observation; in ``info``), draws them per
+    episode, and draws them again once, at a step uniform in 100-300 (``redraw``): ``delay``: the
+    force applied is the one commanded 2-6 steps (0.1-0.3 s) earlier (``delay_min``,
+    ``delay_max``); ``lag``: a first-order actuator, its time constant log-uniform in 0.1-0.5 s
+    (``lag_min``, ``lag_max``; the period's force is the actuator's mean over it); ``unmodelled``
+    (``unmodelled=1``): the gyroscopic torque ``-omega x h`` of a rotor spinning inside the body with
+    momentum ``h`` in ``U(-2, 2)^3`` N m s (body axes), a wheel the rigid-body model does not know.
+
     ## Info
 
     ``phi`` (``(3,)``, rad/s), ``abs_phi``, ``abs_phi_sf``, ``state`` (``psi, theta, varphi, psid,
     thetad, varphid``), ``force`` (N m), ``time``; ``params`` at reset (``J1, J2, J3, Omega,
     lam``); ``termination_reason`` when terminated.
+    Where the episode hides structure (``delay``, ``lag``, ``unmodelled``): ``delay_steps``,
+    ``lag_time_constant`` (s) and ``unmodelled_coefficients``
+    (``rotor_momentum_1``, ``_2``, ``_3``), in force for the next step.
 
     ## Version History
 

@@ -185,6 +185,16 @@ def parameter_drift(s: jax.Array, p: jax.Array, args: Args) -> jax.Array:
     return jnp.zeros((6, len(FILTERED_PARAMS)), s.dtype).at[3:5, 0:2].set(jnp.outer(n, n))
 
 
+def unmodelled(s: jax.Array, p: jax.Array, c: jax.Array, args: Args, *, system: ModuleType) -> jax.Array:
+    """Wind on the hull and quadratic cross-flow drag, which the model lacks, both across the hull
+    (along the constraint's direction ``n = (sin theta, -cos theta)``): the wind's force ``c_0`` N,
+    blowing towards the compass direction ``c_1`` (rad), pushes the hull's side with ``c_0 sin(theta
+    - c_1)``; the drag is ``-c_2 |phi| phi``, against the sideways speed through the water (``phi``)."""
+    slip = system.phi(s, p)[0]
+    across = c[0] * jnp.sin(s[2] - c[1]) - c[2] * jnp.abs(slip) * slip
+    return jnp.stack([across * jnp.sin(s[2]), -across * jnp.cos(s[2]), jnp.zeros((), s.dtype)]) / p[0]
+
+
 @dataclass(frozen=True)
 class USVOptions(TaskOptions):
     """The USV's own keyword arguments."""
@@ -215,6 +225,9 @@ class USVTask(Task):
     phi_sf_scale = 1.0
     angles = (2,)  # theta
     uncertain = ("m", "I", "current_scale")
+    #: Wind force (N) and the direction it blows to (rad), and the cross-flow drag (N s^2/m^2).
+    unmodelled_ranges = {"wind_force": (10.0, 40.0), "wind_direction": (-math.pi, math.pi),
+                         "crossflow_drag": (5.0, 50.0)}
     filtered_params = FILTERED_PARAMS  # the local current, read at the boat
     unmeasured = (7, 8)  # the position: the frame centred on the boat does not hold where the boat is
 
@@ -396,12 +409,28 @@ class USVStreamEnv(ConstraintEnv):
     | coarse        | ``dt=0.1, substeps=4``                                                     |
     | disturbance   | ``impulse_prob=0.05``: random 0.3 m/s velocity kicks                       |
 
+    ``delay``, ``lag`` and ``unmodelled`` make the model wrong in structure. Each hides its
+    quantities from the controller (never in the observation; in ``info``), draws them per
+    episode, and draws them again once, at a step uniform in 100-300 (``redraw``): ``delay``: the
+    force applied is the one commanded 2-6 steps (0.1-0.3 s) earlier (``delay_min``,
+    ``delay_max``); ``lag``: a first-order actuator, its time constant log-uniform in 0.1-0.5 s
+    (``lag_min``, ``lag_max``; the period's force is the actuator's mean over it); ``unmodelled``
+    (``unmodelled=1``): wind and cross-flow drag across the hull, neither of which the model has: the wind's
+    ``w sin(theta - psi_w)``, ``w`` in ``U(10, 40)`` N blowing towards ``psi_w`` in ``U(-pi, pi)``, and
+    ``-c_d |phi| phi``, ``c_d`` in ``U(5, 50)`` N s^2/m^2.
+
+    ``delay_min``, ``delay_max``, ``lag_min``, ``lag_max`` (0), ``unmodelled`` (0) and ``redraw`` (False)
+    set the hidden structure, as for every task.
+
     ## Info
 
     ``phi`` (float64 ``(1,)``), ``abs_phi``, ``abs_phi_sf`` (``|phi| / (1 m/s)``), ``state``
     (``x, y, theta, xd, yd, thetad``), ``force`` (N), ``time``; plus ``termination_reason`` when
     terminated. The info of ``reset`` also holds ``params`` (the episode's true ``m, I,
     current_scale, c_*``).
+    Where the episode hides structure (``delay``, ``lag``, ``unmodelled``): ``delay_steps``,
+    ``lag_time_constant`` (s) and ``unmodelled_coefficients``
+    (``wind_force``, ``wind_direction``, ``crossflow_drag``), in force for the next step.
 
     ## Version History
 
