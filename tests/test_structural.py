@@ -24,6 +24,16 @@ from vnhc_gym.tasks import env_ids
 ENVS = env_ids("v1", shipped_only=True)
 
 
+def _phis(env: gym.Env, policy: object, steps: int = 20) -> np.ndarray:
+    """``phi`` after each of ``steps`` steps of ``policy`` from the seed-5 start."""
+    obs, _ = env.reset(seed=5)
+    phis = []
+    for _ in range(steps):
+        obs, _, _, _, info = env.step(policy.predict(obs)[0])  # type: ignore[attr-defined]
+        phis.append(info["phi"])
+    return np.array(phis)
+
+
 def _forces(env_id: str, actions: np.ndarray, **kwargs: object) -> np.ndarray:
     env = gym.make(env_id, **kwargs)
     env.reset(seed=3)
@@ -122,13 +132,7 @@ def test_the_oracle_makes_phi_decay_exponentially_through_the_actuator(scenario:
     gain = 5.0
     kwargs = ({"delay_min": 3, "delay_max": 3} if scenario == "delay" else {"lag_min": 0.1, "lag_max": 0.1})
     env = gym.make("vnhc_gym/FlockingAlign-v1", redraw=False, **kwargs)
-    obs, _ = env.reset(seed=5)
-    oracle = OracleController(env, gain=gain)
-    phis = []
-    for _ in range(20):
-        obs, _, _, _, info = env.step(oracle.predict(obs)[0])
-        phis.append(info["phi"])
-    phis = np.array(phis)
+    phis = _phis(env, OracleController(env, gain=gain))
     # After the commands issued before the oracle's first plan have acted (3 steps of delay), each
     # step shrinks phi by exp(-k dt).
     start = 4 if scenario == "delay" else 1
@@ -188,13 +192,7 @@ def test_the_disturbance_observer_estimates_the_blade_s_friction() -> None:
 def test_told_the_delay_the_law_makes_phi_decay_as_the_oracle_does() -> None:
     gain = 5.0
     env = gym.make("vnhc_gym/FlockingAlign-v1", delay_min=3, delay_max=3, redraw=False)
-    obs, _ = env.reset(seed=5)
-    informed = InformedActuatedLaw(env, gain=gain)
-    phis = []
-    for _ in range(20):
-        obs, _, _, _, info = env.step(informed.predict(obs)[0])
-        phis.append(info["phi"])
-    phis = np.array(phis)
+    phis = _phis(env, InformedActuatedLaw(env, gain=gain))
     np.testing.assert_allclose(phis[5:12] / phis[4:11], math.exp(-gain * 0.05), rtol=1e-6)
 
 

@@ -13,23 +13,29 @@ __all__ = ["Policy", "RandomPolicy", "ZeroPolicy", "spaces_of", "task_of"]
 Array = NDArray[np.float64]
 
 
-def task_of(env: Any) -> Any:
-    """The configured [`Task`][vnhc_gym.tasks.base.Task] of a vnhc_gym environment (single, wrapped or
-    vector), or ``TypeError``."""
+def _part_of(env: Any, name: str, mark: str) -> Any:
+    """The attribute ``name`` (an object with the attribute ``mark``) of a vnhc_gym environment or of
+    what it wraps (its ``unwrapped``, then its ``env`` chain), or None."""
     obj = env
     for _ in range(64):
-        task = getattr(obj, "task", None)
-        if task is not None and hasattr(task, "controller_inputs"):
-            return task
-        unwrapped = getattr(obj, "unwrapped", None)
-        if unwrapped is not None and unwrapped is not obj:
-            task = getattr(unwrapped, "task", None)
-            if task is not None and hasattr(task, "controller_inputs"):
-                return task
+        for holder in (obj, getattr(obj, "unwrapped", None)):
+            part = getattr(holder, name, None)
+            if part is not None and hasattr(part, mark):
+                return part
         obj = getattr(obj, "env", None)
         if obj is None:
             break
-    raise TypeError(f"{type(env).__name__} is not a vnhc_gym environment (single, wrapped or vector): it has no task")
+    return None
+
+
+def task_of(env: Any) -> Any:
+    """The configured [`Task`][vnhc_gym.tasks.base.Task] of a vnhc_gym environment (single, wrapped or
+    vector), or ``TypeError``."""
+    task = _part_of(env, "task", "controller_inputs")
+    if task is None:
+        raise TypeError(f"{type(env).__name__} is not a vnhc_gym environment (single, wrapped or vector): it has no "
+                        f"task")
+    return task
 
 
 def spaces_of(env: Any) -> tuple[gym.Space, gym.Space]:
@@ -51,16 +57,12 @@ def checked_task_of(env: Any) -> Any:
 
 
 def batch_of(env: Any) -> Any:
-    """The `vnhc_gym.envs.runtime.Batch` of a vnhc_gym environment (single, wrapped or vector)."""
-    obj = env
-    for _ in range(64):
-        batch = getattr(obj, "batch", None) or getattr(getattr(obj, "unwrapped", None), "batch", None)
-        if batch is not None and hasattr(batch, "buf"):
-            return batch
-        obj = getattr(obj, "env", None)
-        if obj is None:
-            break
-    raise TypeError(f"{type(env).__name__} is not a vnhc_gym environment: the oracle reads its state")
+    """The `vnhc_gym.envs.runtime.Batch` of a vnhc_gym environment (single, wrapped or vector): what
+    a reference that reads the environment's memory reads, or ``TypeError``."""
+    batch = _part_of(env, "batch", "buf")
+    if batch is None:
+        raise TypeError(f"{type(env).__name__} is not a vnhc_gym environment: a reference reads its state")
+    return batch
 
 
 class Policy:

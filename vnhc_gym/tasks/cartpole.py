@@ -225,14 +225,11 @@ class CartPoleBalanceEnv(ConstraintEnv):
     ``U(0.7, 1.3)``); ``noisy`` (observation noise 0.02); ``coarse`` (``dt = 0.1``, 4 substeps);
     ``disturbance`` (0.3 rad/s kicks to the pole's rate with probability 0.05 per step).
 
-    ``delay``, ``lag`` and ``unmodelled`` make the model wrong in structure. Each hides its
-    quantities from the controller (never in the observation; in ``info``), draws them per
-    episode, and draws them again once, at a step uniform in 100-300 (``redraw``): ``delay``: the
-    force applied is the one commanded 1-3 steps (0.05-0.15 s) earlier (``delay_min``,
-    ``delay_max``; shorter than the other tasks' 2-6: the pole falls before a longer delay lets any
-    command act); ``lag``: a first-order actuator, its time constant log-uniform in 0.05-0.3 s
-    (``lag_min``, ``lag_max``; the period's force is the actuator's mean over it); ``unmodelled``
-    (``unmodelled=1``): Coulomb friction of the cart on its track, ``-mu (M_c + m_p) g sgn(xd)``, ``mu`` in
+    ``delay``, ``lag`` and ``unmodelled``: the model wrong in structure, hidden from the controller
+    and drawn again mid-episode, as for every task, with a shorter ``delay`` (1-3 steps, 0.05-0.15
+    s) and ``lag`` (0.05-0.3 s) than the other tasks' (2-6 steps, 0.1-0.5 s): the pole falls before a
+    longer delay lets any command act; ``unmodelled``:
+    Coulomb friction of the cart on its track, ``-mu (M_c + m_p) g sgn(xd)``, ``mu`` in
     ``U(0.05, 0.3)``: the model has only the viscous ``b_c``, where a real cart's bearings add a
     dry friction.
 

@@ -319,13 +319,9 @@ class FlockingAlignEnv(ConstraintEnv):
     | coarse        | ``dt=0.1, substeps=4``                                                    |
     | disturbance   | ``impulse_prob=0.05``: random 1 m/s velocity kicks                        |
 
-    ``delay``, ``lag`` and ``unmodelled`` make the model wrong in structure. Each hides its
-    quantities from the controller (never in the observation; in ``info``), draws them per
-    episode, and draws them again once, at a step uniform in 100-300 (``redraw``): ``delay``: the
-    force applied is the one commanded 2-6 steps (0.1-0.3 s) earlier (``delay_min``,
-    ``delay_max``); ``lag``: a first-order actuator, its time constant log-uniform in 0.1-0.5 s
-    (``lag_min``, ``lag_max``; the period's force is the actuator's mean over it); ``unmodelled``
-    (``unmodelled=1``): quadratic air drag ``-c |v_b| v_b`` on every follower, ``c`` in ``U(0.05, 0.3)``
+    ``delay`` (2-6 steps), ``lag`` (0.1-0.5 s) and ``unmodelled``: the model wrong in structure,
+    hidden from the controller and drawn again mid-episode, as for every task; ``unmodelled``:
+    quadratic air drag ``-c |v_b| v_b`` on every follower, ``c`` in ``U(0.05, 0.3)``
     N s^2/m^2 (the leader falls free): the model's particles move in a vacuum.
 
     Explicit keyword arguments override a scenario's values.

@@ -234,13 +234,9 @@ class SpacecraftPointEnv(ConstraintEnv):
     1.3)``); ``noisy`` (observation noise 0.02); ``coarse`` (``dt = 0.1``, 4 substeps);
     ``disturbance`` (0.3 rad/s kicks to the angle rates with probability 0.05 per step).
 
-    ``delay``, ``lag`` and ``unmodelled`` make the model wrong in structure. Each hides its
-    quantities from the controller (never in the observation; in ``info``), draws them per
-    episode, and draws them again once, at a step uniform in 100-300 (``redraw``): ``delay``: the
-    force applied is the one commanded 2-6 steps (0.1-0.3 s) earlier (``delay_min``,
-    ``delay_max``); ``lag``: a first-order actuator, its time constant log-uniform in 0.1-0.5 s
-    (``lag_min``, ``lag_max``; the period's force is the actuator's mean over it); ``unmodelled``
-    (``unmodelled=1``): the gyroscopic torque ``-omega x h`` of a rotor spinning inside the body with
+    ``delay`` (2-6 steps), ``lag`` (0.1-0.5 s) and ``unmodelled``: the model wrong in structure,
+    hidden from the controller and drawn again mid-episode, as for every task; ``unmodelled``:
+    the gyroscopic torque ``-omega x h`` of a rotor spinning inside the body with
     momentum ``h`` in ``U(-2, 2)^3`` N m s (body axes), a wheel the rigid-body model does not know.
 
     ## Info

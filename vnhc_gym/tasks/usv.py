@@ -409,13 +409,9 @@ class USVStreamEnv(ConstraintEnv):
     | coarse        | ``dt=0.1, substeps=4``                                                     |
     | disturbance   | ``impulse_prob=0.05``: random 0.3 m/s velocity kicks                       |
 
-    ``delay``, ``lag`` and ``unmodelled`` make the model wrong in structure. Each hides its
-    quantities from the controller (never in the observation; in ``info``), draws them per
-    episode, and draws them again once, at a step uniform in 100-300 (``redraw``): ``delay``: the
-    force applied is the one commanded 2-6 steps (0.1-0.3 s) earlier (``delay_min``,
-    ``delay_max``); ``lag``: a first-order actuator, its time constant log-uniform in 0.1-0.5 s
-    (``lag_min``, ``lag_max``; the period's force is the actuator's mean over it); ``unmodelled``
-    (``unmodelled=1``): wind and cross-flow drag across the hull, neither of which the model has: the wind's
+    ``delay`` (2-6 steps), ``lag`` (0.1-0.5 s) and ``unmodelled``: the model wrong in structure,
+    hidden from the controller and drawn again mid-episode, as for every task; ``unmodelled``:
+    wind and cross-flow drag across the hull, neither of which the model has: the wind's
     ``w sin(theta - psi_w)``, ``w`` in ``U(10, 40)`` N blowing towards ``psi_w`` in ``U(-pi, pi)``, and
     ``-c_d |phi| phi``, ``c_d`` in ``U(5, 50)`` N s^2/m^2.
 
