@@ -426,13 +426,15 @@ def test_adaptive_law_lowers_the_usv_phi_under_mismatch() -> None:
 # --------------------------------------------------------------------------- classical baselines and tuning
 def test_make_classical_builds_each_baseline_by_name() -> None:
     env = gym.make(USV)
+    from vnhc_gym.baselines.actuated import ActuatedLaw
     from vnhc_gym.baselines.kalman import KalmanController
     from vnhc_gym.baselines.mpc import MPCController
     from vnhc_gym.baselines.safety import SafeLaw
 
     expected = {"law": GeometricController, "tuned_law": GeometricController, "observer": ObserverController,
                 "adaptive": AdaptiveController, "mpc": MPCController, "safe_law": SafeLaw,
-                "kalman": KalmanController}
+                "kalman": KalmanController, "actuated_law": ActuatedLaw, "actuated_nominal": ActuatedLaw,
+                "actuated_dob": ActuatedLaw}
     assert set(CLASSICAL) == set(expected)
     for name, cls in expected.items():
         pol = make_classical(name, env)
@@ -472,7 +474,9 @@ def _patch_evaluate(monkeypatch: pytest.MonkeyPatch, log: _SeedLog) -> None:
 def test_tuning_reads_only_validation_seeds_and_keeps_the_best(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
     log = _SeedLog(evaluate)
     _patch_evaluate(monkeypatch, log)
-    scenario = {"observer": "noisy", "adaptive": "mismatch"}.get(name, "nominal")
+    # Each where it can act (the actuated laws only where the structure is hidden: `applicable`).
+    scenario = {"observer": "noisy", "adaptive": "mismatch", "actuated_law": "delay", "actuated_nominal": "lag",
+                "actuated_dob": "unmodelled"}.get(name, "nominal")
     best, table = tune(name, USV, scenario, n_episodes=3)
     _, grid = CLASSICAL[name]
     assert len(log.calls) == len(table) == int(np.prod([len(v) for v in grid.values()]))

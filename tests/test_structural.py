@@ -24,6 +24,22 @@ from vnhc_gym.tasks import env_ids
 ENVS = env_ids("v1", shipped_only=True)
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _no_persistent_compilation_cache() -> object:
+    """This module compiles without the run's persistent cache: in two full runs of the suite, a
+    worker that had compiled most of it crashed with a segmentation fault inside XLA's
+    ``executable.serialize()`` (JAX's cache write) on one of this module's programs, and took the
+    run down.  Its programs compile in about a second each without the cache."""
+    from jax._src import compilation_cache
+
+    enabled = jax.config.jax_enable_compilation_cache
+    jax.config.update("jax_enable_compilation_cache", False)
+    compilation_cache.reset_cache()
+    yield
+    jax.config.update("jax_enable_compilation_cache", enabled)
+    compilation_cache.reset_cache()
+
+
 def _phis(env: gym.Env, policy: object, steps: int = 20) -> np.ndarray:
     """``phi`` after each of ``steps`` steps of ``policy`` from the seed-5 start."""
     obs, _ = env.reset(seed=5)
