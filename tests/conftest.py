@@ -78,6 +78,19 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     items.sort(key=rank)  # stable: each rank keeps the collection order
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs() -> Iterator[None]:
+    """Each test module's compiled programs are released when it ends (the persistent cache keeps
+    them on disk for the next module that needs one): a worker that had compiled most of the suite
+    crashed with a segmentation fault inside XLA, in its compiler or in its executable's
+    serialisation, on a program it compiled late in its life, where a fresh process compiles the
+    same program without fault."""
+    yield
+    import jax
+
+    jax.clear_caches()
+
+
 def pytest_unconfigure(config: pytest.Config) -> None:
     """The run's compilation cache goes with the run (removed by the process that made it; the xdist
     workers inherit its path and leave it)."""

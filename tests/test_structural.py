@@ -22,6 +22,8 @@ from vnhc_gym.envs.config import SCENARIOS, STRUCTURAL
 from vnhc_gym.tasks import env_ids
 
 ENVS = env_ids("v1", shipped_only=True)
+#: Held to one worker, which the collection hook hands out first: compiled early in a worker's life.
+pytestmark = pytest.mark.xdist_group("test_structural")
 
 
 @pytest.fixture(autouse=True, scope="module")
