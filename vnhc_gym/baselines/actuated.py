@@ -236,7 +236,6 @@ class ActuatedLaw(StatefulLaw):
                            unmodelled=self._unmodelled(module, system), substeps=int(self.substeps),
                            iters=self.iters, singular_tol=self.model.singular_tol, slots=max(1, int(c.delay_max)))
         self._mem: Memory | None = None
-        self._issued: Array | None = None  # what the rows commanded last (or were told they applied)
 
     def _unmodelled(self, module: Any, system: Any) -> Any:
         """The forces the controller plans with (none: it does not know them)."""
@@ -255,13 +254,6 @@ class ActuatedLaw(StatefulLaw):
     def reset(self) -> None:
         self._mem = None
 
-    def applied(self, action: ArrayLike) -> None:
-        """The rows' commands are what the environment received (a residual added to them)."""
-        if self._issued is None:
-            return
-        a = np.asarray(action, dtype=np.float64).reshape(self._issued.shape)
-        self._issued = np.clip(np.where(np.isfinite(a), a, 0.0), -1.0, 1.0) * self.force_bound
-
     def _hidden(self, b: int) -> tuple[Array, Array]:
         """The hypotheses ``(B, H, 2)`` and the coefficients of the forces planned with ``(B, k)``."""
         # One unused coefficient where none is planned with: no empty arrays in a program.
@@ -276,11 +268,11 @@ class ActuatedLaw(StatefulLaw):
         args, dt, bound = self.task.args, float(self.dt), np.asarray(self.force_bound, dtype=np.float64)
         with jax.enable_x64(True):
             fresh = start(o, nominal, args, hyp.shape[1], self.act_dim)
-            if self._mem is None or self._issued is None or self._fresh is None or self._issued.shape[0] != b:
+            if self._mem is None or self._u is None or self._fresh is None or self._u.shape[0] != b:
                 mem = fresh
                 self._fresh = np.zeros(b, dtype=bool)
             else:
-                mem = update(self._mem, o, self._issued, nominal, args, hyp, coef, dt, bound, self.forget,
+                mem = update(self._mem, o, self._u, nominal, args, hyp, coef, dt, bound, self.forget,
                              self.observer)
                 restart = self._fresh
                 mem = jax.tree.map(lambda a, c: np.where(restart.reshape(-1, *([1] * (a.ndim - 1))), a, c),
@@ -292,7 +284,7 @@ class ActuatedLaw(StatefulLaw):
         a = np.asarray(u, dtype=np.float64) / self.force_bound
         a = np.clip(np.where(np.isfinite(a), a, 0.0), -1.0, 1.0)
         # The force the environment receives from this action (``predict`` returns float32).
-        self._issued = a.astype(np.float32).astype(np.float64) * self.force_bound
+        self._u = a.astype(np.float32).astype(np.float64) * self.force_bound
         self.last_singular = np.asarray(singular)
         return a
 
